@@ -1,0 +1,1 @@
+"""sb3-sfgpi: successor features, OLS and GPI for Stable-Baselines3."""

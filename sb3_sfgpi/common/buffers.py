@@ -1,0 +1,103 @@
+"""Replay buffer for vector rewards.
+
+SB3's :class:`~stable_baselines3.common.buffers.ReplayBuffer` stores one float per transition and, handed
+vector rewards, either fails or (when sampling) flattens them silently into shape ``(batch * d, 1)``.
+:class:`MOReplayBuffer` stores rewards of shape ``(buffer_size, n_envs, reward_dim)`` and samples
+``(batch, reward_dim)``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
+from stable_baselines3.common.vec_env import VecNormalize
+
+
+class MOReplayBuffer(ReplayBuffer):
+    """
+    Replay buffer whose rewards are vectors of length ``reward_dim``.
+
+    Time-limit truncations are stored apart from terminations (``handle_timeout_termination``) so that
+    truncated transitions bootstrap. With ``optimize_memory_usage=True`` the next observation of a
+    truncated transition is lost, so, as in SB3, truncations are then treated as terminations.
+
+    :param buffer_size: Max number of transitions in the buffer
+    :param observation_space: Observation space
+    :param action_space: Action space
+    :param device: PyTorch device
+    :param n_envs: Number of parallel environments
+    :param optimize_memory_usage: Store each observation once (about half the memory for observations)
+    :param handle_timeout_termination: Bootstrap on time-limit truncation (forced off with
+        ``optimize_memory_usage``)
+    :param reward_dim: Number of objectives ``d``
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        reward_dim: int = 1,
+    ):
+        if reward_dim < 1:
+            raise ValueError(f"reward_dim must be at least 1, got {reward_dim}")
+        super().__init__(
+            buffer_size,
+            observation_space,
+            action_space,
+            device=device,
+            n_envs=n_envs,
+            optimize_memory_usage=optimize_memory_usage,
+            handle_timeout_termination=handle_timeout_termination and not optimize_memory_usage,
+        )
+        self.reward_dim = reward_dim
+        self.rewards = np.zeros((self.buffer_size, self.n_envs, reward_dim), dtype=np.float32)
+
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        """
+        Add one step of ``n_envs`` transitions.
+
+        :raises ValueError: if ``reward`` is not of shape ``(n_envs, reward_dim)``
+        """
+        reward = np.asarray(reward)
+        if reward.shape != (self.n_envs, self.reward_dim):
+            raise ValueError(
+                f"MOReplayBuffer expects rewards of shape (n_envs, reward_dim) = {(self.n_envs, self.reward_dim)}, "
+                f"got {reward.shape}"
+            )
+        super().add(obs, next_obs, action, reward, done, infos)
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        if env is not None and env.norm_reward:
+            raise ValueError("Reward normalisation (VecNormalize(norm_reward=True)) is not supported for vector rewards")
+        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+        if self.optimize_memory_usage:
+            next_obs = self.observations[(batch_inds + 1) % self.buffer_size, env_indices, :]
+        else:
+            next_obs = self.next_observations[batch_inds, env_indices, :]
+        data = (
+            self._normalize_obs(self.observations[batch_inds, env_indices, :], env),
+            self.actions[batch_inds, env_indices, :],
+            self._normalize_obs(next_obs, env),
+            # A time-limit truncation is not a termination: it bootstraps.
+            (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
+            self.rewards[batch_inds, env_indices, :],
+        )
+        return ReplayBufferSamples(*tuple(map(self.to_torch, data)))

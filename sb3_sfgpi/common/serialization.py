@@ -1,0 +1,104 @@
+"""JSON helpers: Gymnasium spaces as plain data, and atomic file writes.
+
+Nothing here unpickles or evaluates anything: a file read through this module can only yield data.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+
+def space_to_dict(space: spaces.Space) -> dict[str, Any]:
+    """
+    Describe a Box, Discrete, MultiDiscrete or MultiBinary space as JSON-serialisable data.
+
+    :raises ValueError: any other space
+    """
+    if isinstance(space, spaces.Discrete):
+        return {"type": "Discrete", "n": int(space.n), "start": int(space.start)}
+    if isinstance(space, spaces.MultiDiscrete):
+        return {"type": "MultiDiscrete", "nvec": space.nvec.tolist(), "start": np.asarray(space.start).tolist()}
+    if isinstance(space, spaces.MultiBinary):
+        return {"type": "MultiBinary", "n": np.asarray(space.n).tolist()}
+    if isinstance(space, spaces.Box):
+        return {
+            "type": "Box",
+            "low": _finite_or_str(space.low),
+            "high": _finite_or_str(space.high),
+            "shape": list(space.shape),
+            "dtype": np.dtype(space.dtype).name,
+        }
+    raise ValueError(f"cannot describe {type(space).__name__} spaces as JSON")
+
+
+def space_from_dict(data: dict[str, Any]) -> spaces.Space:
+    """
+    Rebuild a space described by :func:`space_to_dict`.
+
+    :raises ValueError: unknown or malformed description
+    """
+    try:
+        kind = data["type"]
+        if kind == "Discrete":
+            return spaces.Discrete(int(data["n"]), start=int(data["start"]))
+        if kind == "MultiDiscrete":
+            return spaces.MultiDiscrete(np.array(data["nvec"], dtype=np.int64), start=np.array(data["start"]))
+        if kind == "MultiBinary":
+            return spaces.MultiBinary(data["n"])
+        if kind == "Box":
+            dtype = np.dtype(data["dtype"])
+            low = np.array(data["low"], dtype=np.float64)
+            high = np.array(data["high"], dtype=np.float64)
+            return spaces.Box(low=low.astype(dtype), high=high.astype(dtype), shape=tuple(data["shape"]), dtype=dtype)
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"malformed space description {data!r}: {error}") from error
+    raise ValueError(f"unknown space type {kind!r}")
+
+
+def _finite_or_str(array: np.ndarray) -> list:
+    # JSON has no infinities: keep them as the strings "inf" / "-inf" (np.array(...) reads them back).
+    return np.where(np.isfinite(array), array.astype(np.float64), array.astype(str)).tolist()
+
+
+def atomic_write_json(path: str | Path, data: Any) -> None:
+    """Write ``data`` as JSON so that ``path`` holds either the old or the new content, never a part."""
+    atomic_write_bytes(path, json.dumps(data, indent=2, allow_nan=False).encode())
+
+
+def atomic_write_bytes(path: str | Path, payload: bytes) -> None:
+    """Write ``payload`` to a temporary file beside ``path``, flush it to disk, then rename it over ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(payload)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_json(path: str | Path, what: str) -> Any:
+    """
+    Read a JSON file.
+
+    :param what: what the file is, for error messages
+    :raises ValueError: missing or unreadable file
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{what} {path} does not exist")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{what} {path} is not valid JSON (truncated or corrupt?): {error}") from error

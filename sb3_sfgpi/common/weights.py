@@ -1,0 +1,61 @@
+"""Preference weights on the probability simplex.
+
+A weight vector ``w`` of length ``d`` scalarizes a vector reward ``r`` into ``w · r``.
+Every public entry point of the library passes user weights through :func:`validate_weights`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndarray:
+    """
+    Check a preference weight vector and return it normalised onto the simplex.
+
+    Positive weights that do not sum to one are rescaled (``[2, 1]`` becomes ``[2/3, 1/3]``):
+    the argmax of ``w · ψ`` does not change, and values stay comparable across weights.
+
+    :param weights: array-like of length ``reward_dim``
+    :param reward_dim: number of objectives ``d``
+    :param name: how the argument is called in error messages
+    :return: float64 array of shape ``(reward_dim,)`` with ``w >= 0`` and ``sum(w) == 1``
+    :raises ValueError: wrong length, NaN or infinite, negative, or all-zero weights
+    """
+    try:
+        w = np.asarray(weights, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be a sequence of {reward_dim} numbers, got {weights!r}") from error
+    if w.ndim != 1 or w.shape[0] != reward_dim:
+        raise ValueError(f"{name} must have length {reward_dim} (one per objective), got shape {w.shape}")
+    if not np.all(np.isfinite(w)):
+        raise ValueError(f"{name} must be finite, got {w.tolist()} (NaN or inf)")
+    if np.any(w < 0):
+        raise ValueError(f"{name} must be non-negative, got {w.tolist()}")
+    total = w.sum()
+    if total <= 0:
+        raise ValueError(f"{name} must not be all zero, got {w.tolist()}")
+    return w / total
+
+
+def simplex_extrema(reward_dim: int) -> list[np.ndarray]:
+    """
+    The corners of the weight simplex: one unit vector per objective.
+
+    :param reward_dim: number of objectives ``d``
+    :return: ``d`` float64 arrays ``e_0, ..., e_{d-1}``
+    """
+    return [np.eye(reward_dim)[i] for i in range(reward_dim)]
+
+
+def random_weights(reward_dim: int, n: int | None = None, rng: np.random.Generator | int | None = None) -> np.ndarray:
+    """
+    Weights drawn uniformly from the simplex (Dirichlet with all concentrations 1).
+
+    :param reward_dim: number of objectives ``d``
+    :param n: how many; ``None`` for a single vector
+    :param rng: a numpy ``Generator`` or a seed
+    :return: shape ``(reward_dim,)`` when ``n`` is None, else ``(n, reward_dim)``
+    """
+    generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    return generator.dirichlet(np.ones(reward_dim), size=n)

@@ -1,0 +1,352 @@
+"""Generalized policy improvement over a set of successor-feature policies.
+
+``π(s) = argmax_a max_{π ∈ Π} w · ψ^π(s, a)``: any preference ``w`` gets a behaviour from the set,
+without training. All networks of a set share one architecture and are evaluated in a single batched
+pass (``torch.func.stack_module_state`` + ``vmap``).
+
+Policy-set directory format (``GPIPolicy.save`` / ``GPIPolicy.load``)::
+
+    manifest.json     {"format": "sb3-sfgpi/policy-set", "version": 1, "reward_dim": d,
+                       "observation_space": {...}, "action_space": {...}, "network": {...},
+                       "policies": [{"file": "policy_000.pt", "weights": [...], "value": [...] | null,
+                                     "agent": str | null, "iteration": int | null}, ...]}
+    policy_000.pt     the state dict of one SF network (tensors only, read with weights_only=True)
+
+The manifest is written last and atomically, so a directory whose save was interrupted keeps the
+previous manifest or has none. Loading never runs code from the directory.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import FlattenExtractor
+from torch import nn
+from torch.func import functional_call, stack_module_state
+
+from sb3_sfgpi.common.serialization import atomic_write_json, read_json, space_from_dict, space_to_dict
+from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.sfdqn.policies import SFNetwork, TabularSFNetwork
+from sb3_sfgpi.sfdqn.sfdqn import SFDQN
+
+FORMAT = "sb3-sfgpi/policy-set"
+VERSION = 1
+MANIFEST = "manifest.json"
+_ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
+
+
+class CorruptPolicySetError(ValueError):
+    """A policy-set directory that cannot be loaded: missing, truncated, inconsistent or foreign files."""
+
+
+@dataclass(frozen=True)
+class PolicyInfo:
+    """
+    What the set knows of one policy besides its network.
+
+    :param weights: the preference weights it was trained for
+    :param value: its value vector ``V^π`` (``None`` if not evaluated)
+    :param agent: the agent that learned it
+    :param iteration: the OLS iteration that produced it
+    """
+
+    weights: np.ndarray
+    value: np.ndarray | None = None
+    agent: str | None = None
+    iteration: int | None = None
+
+    def to_dict(self, file: str) -> dict[str, Any]:
+        return {
+            "file": file,
+            "weights": self.weights.tolist(),
+            "value": None if self.value is None else self.value.tolist(),
+            "agent": self.agent,
+            "iteration": self.iteration,
+        }
+
+
+def network_spec(net: nn.Module) -> dict[str, Any]:
+    """
+    Plain-data description of an SF network's architecture (enough to rebuild it).
+
+    :raises ValueError: a network this format cannot describe
+    """
+    if isinstance(net, TabularSFNetwork):
+        return {"kind": "tabular"}
+    if isinstance(net, SFNetwork):
+        if type(net.features_extractor) is not FlattenExtractor or net.activation_fn.__name__ not in _ACTIVATIONS:
+            raise ValueError(
+                "the policy-set format stores MLP SF networks with FlattenExtractor and a standard activation "
+                f"({sorted(_ACTIVATIONS)}), got {type(net.features_extractor).__name__} / {net.activation_fn.__name__}"
+            )
+        return {
+            "kind": "mlp",
+            "net_arch": list(net.net_arch),
+            "activation_fn": net.activation_fn.__name__,
+            "normalize_images": bool(net.normalize_images),
+        }
+    raise ValueError(f"not an SF network: {type(net).__name__}")
+
+
+def build_network(
+    spec: dict[str, Any], observation_space: spaces.Space, action_space: spaces.Discrete, reward_dim: int
+) -> nn.Module:
+    """
+    A fresh SF network from :func:`network_spec` data.
+
+    :raises ValueError: unknown kind or activation
+    """
+    if spec.get("kind") == "tabular":
+        return TabularSFNetwork(observation_space, action_space, reward_dim)
+    if spec.get("kind") == "mlp":
+        if spec.get("activation_fn") not in _ACTIVATIONS:
+            raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {sorted(_ACTIVATIONS)}")
+        extractor = FlattenExtractor(observation_space)
+        return SFNetwork(
+            observation_space,
+            action_space,
+            extractor,
+            extractor.features_dim,
+            reward_dim,
+            net_arch=[int(n) for n in spec["net_arch"]],
+            activation_fn=_ACTIVATIONS[spec["activation_fn"]],
+            normalize_images=bool(spec.get("normalize_images", True)),
+        )
+    raise ValueError(f"unknown network kind {spec.get('kind')!r}")
+
+
+class GPIPolicy:
+    """
+    A set of successor-feature policies acting by generalized policy improvement.
+
+    :param models: SFDQN models to put in the set (their current networks are copied)
+    :param device: where the stacked networks live
+    """
+
+    def __init__(self, models: Iterable[SFDQN] = (), device: th.device | str = "cpu"):
+        self.device = th.device(device)
+        self.networks: list[nn.Module] = []
+        self.infos: list[PolicyInfo] = []
+        self._stacked: tuple[dict[str, th.Tensor], dict[str, th.Tensor], nn.Module] | None = None
+        for model in models:
+            self.add(model)
+
+    def __len__(self) -> int:
+        return len(self.networks)
+
+    @property
+    def reward_dim(self) -> int:
+        return self._first().reward_dim
+
+    @property
+    def observation_space(self) -> spaces.Space:
+        return self._first().observation_space
+
+    @property
+    def action_space(self) -> spaces.Discrete:
+        return self._first().action_space
+
+    def _first(self) -> Any:
+        if not self.networks:
+            raise ValueError("the policy set is empty")
+        return self.networks[0]
+
+    def add(
+        self,
+        model: SFDQN | nn.Module,
+        weights: np.ndarray | list[float] | None = None,
+        value: np.ndarray | list[float] | None = None,
+        agent: str | None = None,
+        iteration: int | None = None,
+    ) -> int:
+        """
+        Add a copy of a policy's SF network to the set.
+
+        :param model: an SFDQN model, or an SF network (then ``weights`` is required)
+        :param weights: the weights it was trained for (default: the model's)
+        :param value: its value vector ``V^π``
+        :param agent: the agent that learned it
+        :param iteration: the OLS iteration that produced it
+        :return: its index in the set
+        :raises ValueError: a network of another architecture, spaces or reward dimension than the set's
+        """
+        if isinstance(model, SFDQN):
+            net, weights = model.policy.sf_net, model.weights if weights is None else weights
+        elif weights is None:
+            raise ValueError("weights are required when adding a bare SF network")
+        else:
+            net = model
+        spec = network_spec(net)
+        if self.networks:
+            first = self.networks[0]
+            same = (
+                spec == network_spec(first)
+                and net.observation_space == first.observation_space
+                and net.action_space == first.action_space
+                and net.reward_dim == first.reward_dim
+            )
+            if not same:
+                raise ValueError("all policies of a set must share network architecture, spaces and reward_dim")
+        reward_dim = net.reward_dim
+        w = validate_weights(weights, reward_dim)
+        v = None if value is None else np.asarray(value, dtype=np.float64).reshape(reward_dim)
+        copied = copy.deepcopy(net).to(self.device)
+        copied.set_training_mode(False)
+        for parameter in copied.parameters():
+            parameter.requires_grad_(False)
+        self.networks.append(copied)
+        self.infos.append(PolicyInfo(w, v, agent, iteration))
+        self._stacked = None
+        return len(self.networks) - 1
+
+    def _stack(self) -> tuple[dict[str, th.Tensor], dict[str, th.Tensor], nn.Module]:
+        if self._stacked is None:
+            params, buffers = stack_module_state(self.networks)  # type: ignore[arg-type]
+            skeleton = copy.deepcopy(self.networks[0]).to("meta")
+            self._stacked = (params, buffers, skeleton)
+        return self._stacked
+
+    def _psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        params, buffers, skeleton = self._stack()
+
+        def one(p: dict[str, th.Tensor], b: dict[str, th.Tensor], x: th.Tensor) -> th.Tensor:
+            return functional_call(skeleton, (p, b), (x,))
+
+        with th.no_grad():
+            return th.vmap(one, in_dims=(0, 0, None))(params, buffers, obs_tensor)
+
+    def _obs_to_tensor(self, observation: np.ndarray) -> tuple[th.Tensor, bool]:
+        return self._first().obs_to_tensor(observation)
+
+    def successor_features(self, observation: np.ndarray) -> np.ndarray:
+        """
+        ``ψ^π(s, ·)`` of every policy in the set.
+
+        :param observation: one observation or a batch
+        :return: shape ``(n_policies, batch, n_actions, d)``
+        """
+        obs_tensor, _ = self._obs_to_tensor(observation)
+        return self._psi(obs_tensor).cpu().numpy()
+
+    def q_values(self, observation: np.ndarray, w: np.ndarray | list[float]) -> np.ndarray:
+        """
+        GPI action values ``max_π w · ψ^π(s, a)``.
+
+        :param observation: one observation or a batch
+        :param w: preference weights of length ``d``
+        :return: shape ``(batch, n_actions)``
+        """
+        obs_tensor, _ = self._obs_to_tensor(observation)
+        return self._gpi_q(obs_tensor, w).cpu().numpy()
+
+    def _gpi_q(self, obs_tensor: th.Tensor, w: np.ndarray | list[float]) -> th.Tensor:
+        weights = th.as_tensor(validate_weights(w, self.reward_dim), dtype=th.float32, device=self.device)
+        return (self._psi(obs_tensor) @ weights).max(dim=0).values
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        w: np.ndarray | list[float],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """
+        GPI action ``argmax_a max_π w · ψ^π(s, a)`` (ties go to the first action), as SB3's ``predict``.
+
+        :param observation: one observation or a batch
+        :param w: preference weights of length ``d``
+        :param state: unused, returned as is
+        :param episode_start: unused
+        :param deterministic: GPI is deterministic; kept for SB3 compatibility
+        :return: the actions (a scalar array for one observation) and ``state``
+        :raises ValueError: bad weights or an empty set
+        """
+        obs_tensor, vectorized = self._obs_to_tensor(observation)
+        actions = self._gpi_q(obs_tensor, w).argmax(dim=1).cpu().numpy()
+        return (actions if vectorized else actions[0]), state
+
+    def save(self, path: str | Path) -> None:
+        """
+        Write the set as a policy-set directory (see the module docstring).
+
+        :param path: the directory (created if needed)
+        """
+        directory = Path(path)
+        directory.mkdir(parents=True, exist_ok=True)
+        entries = []
+        for i, (net, info) in enumerate(zip(self.networks, self.infos)):
+            file = f"policy_{i:03d}.pt"
+            th.save({k: v.cpu() for k, v in net.state_dict().items()}, directory / file)
+            entries.append(info.to_dict(file))
+        first = self._first()
+        atomic_write_json(
+            directory / MANIFEST,
+            {
+                "format": FORMAT,
+                "version": VERSION,
+                "reward_dim": int(first.reward_dim),
+                "observation_space": space_to_dict(first.observation_space),
+                "action_space": space_to_dict(first.action_space),
+                "network": network_spec(first),
+                "policies": entries,
+            },
+        )
+
+    @classmethod
+    def load(cls, path: str | Path, device: th.device | str = "cpu") -> GPIPolicy:
+        """
+        Read a policy-set directory written by :meth:`save`.
+
+        :param path: the directory
+        :param device: where to put the networks
+        :raises CorruptPolicySetError: a missing, truncated, inconsistent or foreign directory
+        """
+        directory = Path(path)
+        try:
+            manifest = read_json(directory / MANIFEST, "policy-set manifest")
+            if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+                raise ValueError(f"{directory / MANIFEST} is not an sb3-sfgpi policy-set manifest")
+            if manifest.get("version") != VERSION:
+                raise ValueError(f"unsupported policy-set version {manifest.get('version')!r} (expected {VERSION})")
+            reward_dim = int(manifest["reward_dim"])
+            observation_space = space_from_dict(manifest["observation_space"])
+            action_space = space_from_dict(manifest["action_space"])
+            if not isinstance(action_space, spaces.Discrete):
+                raise ValueError(f"the action space must be Discrete, got {action_space}")
+            policy_set = cls(device=device)
+            for entry in manifest["policies"]:
+                net = build_network(manifest["network"], observation_space, action_space, reward_dim)
+                net.load_state_dict(_read_state_dict(directory, entry["file"]))
+                policy_set.add(
+                    net,
+                    weights=entry["weights"],
+                    value=entry.get("value"),
+                    agent=entry.get("agent"),
+                    iteration=entry.get("iteration"),
+                )
+        except CorruptPolicySetError:
+            raise
+        except (KeyError, TypeError, ValueError, RuntimeError) as error:
+            raise CorruptPolicySetError(f"cannot load the policy set in {directory}: {error}") from error
+        return policy_set
+
+
+def _read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
+    path = directory / file
+    if Path(file).name != file or not path.is_file():
+        raise CorruptPolicySetError(f"policy file {file!r} listed in {directory / MANIFEST} is missing")
+    try:
+        state = th.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many types for truncated files and refused pickles
+        raise CorruptPolicySetError(f"policy file {path} is unreadable or unsafe: {error}") from error
+    if not isinstance(state, dict) or not all(isinstance(v, th.Tensor) for v in state.values()):
+        raise CorruptPolicySetError(f"policy file {path} does not hold a state dict of tensors")
+    return state

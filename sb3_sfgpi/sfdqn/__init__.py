@@ -1,0 +1,4 @@
+from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, SFNetwork, TabularPolicy, TabularSFNetwork
+from sb3_sfgpi.sfdqn.sfdqn import SFDQN
+
+__all__ = ["SFDQN", "MlpPolicy", "SFDQNPolicy", "SFNetwork", "TabularPolicy", "TabularSFNetwork"]

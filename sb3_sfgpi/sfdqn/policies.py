@@ -1,0 +1,364 @@
+"""Successor-feature networks and the SFDQN policies.
+
+A successor-feature network maps an observation to ``ψ(s, ·)`` of shape ``(batch, n_actions, d)``;
+the Q-values for preference weights ``w`` are ``ψ · w``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor, create_mlp
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
+from torch.nn import functional as F
+
+#: Largest table :class:`TabularSFNetwork` builds (number of observation values).
+MAX_TABLE_STATES = 50_000_000
+
+
+def greedy_actions(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
+    """
+    ``argmax_a w · ψ(s, a)`` (ties go to the first action).
+
+    :param psi: successor features, shape ``(batch, n_actions, d)``
+    :param weights: shape ``(d,)`` or ``(batch, d)``
+    :return: actions, shape ``(batch,)``
+    """
+    q_values = (psi * weights.reshape(-1, 1, psi.shape[-1])).sum(dim=-1)
+    return q_values.argmax(dim=1)
+
+
+class SFNetwork(BasePolicy):
+    """
+    MLP successor-feature network.
+
+    :param observation_space: Observation space
+    :param action_space: Action space (Discrete)
+    :param features_extractor: Features extractor
+    :param features_dim: Number of features
+    :param reward_dim: Number of objectives ``d``
+    :param net_arch: Hidden layer sizes
+    :param activation_fn: Activation function
+    :param normalize_images: Whether to divide images by 255
+    """
+
+    action_space: spaces.Discrete
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        features_extractor: BaseFeaturesExtractor,
+        features_dim: int,
+        reward_dim: int,
+        net_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        normalize_images: bool = True,
+    ):
+        super().__init__(
+            observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
+        )
+        self.net_arch = [64, 64] if net_arch is None else list(net_arch)
+        self.activation_fn = activation_fn
+        self.features_dim = features_dim
+        self.reward_dim = reward_dim
+        self.n_actions = int(action_space.n)
+        self.sf_net = nn.Sequential(
+            *create_mlp(features_dim, self.n_actions * reward_dim, self.net_arch, activation_fn)
+        )
+
+    def forward(self, obs: PyTorchObs) -> th.Tensor:
+        """
+        :param obs: Observation batch
+        :return: ``ψ(s, ·)``, shape ``(batch, n_actions, d)``
+        """
+        features = self.extract_features(obs, self.features_extractor)
+        return self.sf_net(features).view(-1, self.n_actions, self.reward_dim)
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        raise NotImplementedError("an SF network has no weights: use SFDQNPolicy or GPIPolicy to act")
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            net_arch=self.net_arch,
+            features_dim=self.features_dim,
+            reward_dim=self.reward_dim,
+            activation_fn=self.activation_fn,
+            features_extractor=self.features_extractor,
+        )
+        return data
+
+
+def observation_radices(observation_space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Lower bounds and number of values of each component of a small integer observation space.
+
+    :param observation_space: Discrete, MultiDiscrete, MultiBinary or integer 1-D Box with finite bounds
+    :return: ``(low, n_values)``, integer arrays of equal length
+    :raises ValueError: for any other space
+    """
+    if isinstance(observation_space, spaces.Discrete):
+        return np.array([observation_space.start]), np.array([observation_space.n])
+    if isinstance(observation_space, spaces.MultiDiscrete) and observation_space.nvec.ndim == 1:
+        return np.asarray(observation_space.start).reshape(-1), observation_space.nvec.astype(np.int64)
+    if isinstance(observation_space, spaces.MultiBinary) and np.ndim(observation_space.n) == 0:
+        return np.zeros(int(observation_space.n), dtype=np.int64), np.full(int(observation_space.n), 2)
+    if (
+        isinstance(observation_space, spaces.Box)
+        and len(observation_space.shape) == 1
+        and np.issubdtype(observation_space.dtype, np.integer)
+        and observation_space.is_bounded()
+    ):
+        low = observation_space.low.astype(np.int64)
+        return low, observation_space.high.astype(np.int64) - low + 1
+    raise ValueError(
+        "TabularPolicy needs a small integer observation space (Discrete, MultiDiscrete, MultiBinary or a bounded "
+        f"integer 1-D Box), got {observation_space}"
+    )
+
+
+class TabularSFNetwork(BasePolicy):
+    """
+    Lookup table of successor features, one row per observation value, initialised to zero.
+
+    The row of an observation is its mixed-radix index. The table is an ``nn.Embedding`` with sparse
+    gradients, so an SGD step only touches the rows of the sampled batch.
+
+    :param observation_space: a small integer observation space (see :func:`observation_radices`)
+    :param action_space: Action space (Discrete)
+    :param reward_dim: Number of objectives ``d``
+    """
+
+    action_space: spaces.Discrete
+
+    def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete, reward_dim: int):
+        super().__init__(observation_space, action_space)
+        low, n_values = observation_radices(observation_space)
+        n_states = int(np.prod(n_values.astype(np.float64)))
+        if n_states > MAX_TABLE_STATES:
+            raise ValueError(
+                f"the observation space has {n_states} values, more than a table holds ({MAX_TABLE_STATES}): "
+                "use MlpPolicy"
+            )
+        strides = np.concatenate([np.cumprod(n_values[::-1])[::-1][1:], [1]]).astype(np.int64)
+        self.register_buffer("low", th.as_tensor(low, dtype=th.long), persistent=False)
+        self.register_buffer("strides", th.as_tensor(strides, dtype=th.long), persistent=False)
+        self.reward_dim = reward_dim
+        self.n_actions = int(action_space.n)
+        self.table = nn.Embedding(n_states, self.n_actions * reward_dim, sparse=True)
+        nn.init.zeros_(self.table.weight)
+
+    def state_index(self, obs: th.Tensor) -> th.Tensor:
+        """
+        :param obs: raw integer observations, shape ``(batch,)`` or ``(batch, n_components)``
+        :return: row indices, shape ``(batch,)``
+        """
+        components = obs.long().reshape(obs.shape[0], -1) - self.low
+        return (components * self.strides).sum(dim=1)
+
+    def forward(self, obs: PyTorchObs) -> th.Tensor:
+        """
+        :param obs: Observation batch (not preprocessed)
+        :return: ``ψ(s, ·)``, shape ``(batch, n_actions, d)``
+        """
+        assert isinstance(obs, th.Tensor)
+        return self.table(self.state_index(obs)).view(-1, self.n_actions, self.reward_dim)
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        raise NotImplementedError("an SF network has no weights: use SFDQNPolicy or GPIPolicy to act")
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return dict(observation_space=self.observation_space, action_space=self.action_space, reward_dim=self.reward_dim)
+
+
+class SFDQNPolicy(BasePolicy):
+    """
+    Policy of SFDQN: an SF network, its target network, and the preference weights it acts for.
+
+    Acting is greedy in ``w · ψ(s, ·)`` with ``w`` stored in the ``weights`` buffer.
+
+    :param observation_space: Observation space
+    :param action_space: Action space (Discrete)
+    :param lr_schedule: Learning rate schedule
+    :param reward_dim: Number of objectives ``d``
+    :param net_arch: Hidden layer sizes of the SF network
+    :param activation_fn: Activation function
+    :param features_extractor_class: Features extractor to use
+    :param features_extractor_kwargs: Keyword arguments for the features extractor
+    :param normalize_images: Whether to divide images by 255
+    :param optimizer_class: The optimizer, Adam by default
+    :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate
+    """
+
+    sf_net: nn.Module
+    sf_net_target: nn.Module
+    #: Whether SFDQN clips the gradient norm (a table is updated exactly, without clipping).
+    clip_gradients = True
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        reward_dim: int,
+        net_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        features_extractor_class: type[BaseFeaturesExtractor] = FlattenExtractor,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+        normalize_images: bool = True,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ):
+        super().__init__(
+            observation_space,
+            action_space,
+            features_extractor_class,
+            features_extractor_kwargs,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+            normalize_images=normalize_images,
+        )
+        self.reward_dim = reward_dim
+        self.net_arch = [64, 64] if net_arch is None else list(net_arch)
+        self.activation_fn = activation_fn
+        self.register_buffer("weights", th.full((reward_dim,), 1.0 / reward_dim))
+        self._build(lr_schedule)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        self.sf_net = self.make_sf_net()
+        self.sf_net_target = self.make_sf_net()
+        self.sf_net_target.load_state_dict(self.sf_net.state_dict())
+        self.sf_net_target.set_training_mode(False)
+        self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
+            self.sf_net.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        )
+
+    def make_sf_net(self) -> SFNetwork:
+        """A new SF network with its own features extractor."""
+        features_extractor = self.make_features_extractor()
+        return SFNetwork(
+            self.observation_space,
+            self.action_space,  # type: ignore[arg-type]
+            features_extractor,
+            features_extractor.features_dim,
+            self.reward_dim,
+            net_arch=self.net_arch,
+            activation_fn=self.activation_fn,
+            normalize_images=self.normalize_images,
+        ).to(self.device)
+
+    def forward(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        return self._predict(obs, deterministic=deterministic)
+
+    def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        return greedy_actions(self.sf_net(obs), self.weights)
+
+    @staticmethod
+    def sf_loss(current: th.Tensor, target: th.Tensor) -> th.Tensor:
+        """
+        Loss between predicted and target successor features: Huber, mean over batch and objectives.
+
+        :param current: ``ψ(s, a)``, shape ``(batch, d)``
+        :param target: TD target, shape ``(batch, d)``
+        """
+        return F.smooth_l1_loss(current, target)
+
+    def set_training_mode(self, mode: bool) -> None:
+        self.sf_net.set_training_mode(mode)
+        self.training = mode
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            reward_dim=self.reward_dim,
+            net_arch=self.net_arch,
+            activation_fn=self.activation_fn,
+            lr_schedule=self._dummy_schedule,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+            features_extractor_class=self.features_extractor_class,
+            features_extractor_kwargs=self.features_extractor_kwargs,
+        )
+        return data
+
+
+MlpPolicy = SFDQNPolicy
+
+
+class TabularPolicy(SFDQNPolicy):
+    """
+    Tabular successor features: multi-objective Q-learning with experience replay.
+
+    Trained by plain SGD on ``0.5 · Σ_batch ||target − ψ(s, a)||²``, so each sampled transition moves its
+    entry by ``α · (target − ψ)`` with ``α`` the learning rate, exactly the tabular update of the paper
+    (Table 1: α = 0.1). By default there is no separate target network (``target_network=False``):
+    targets read the table itself, as in Q-learning.
+
+    :param observation_space: a small integer observation space
+    :param action_space: Action space (Discrete)
+    :param lr_schedule: Learning rate schedule (``α``)
+    :param reward_dim: Number of objectives ``d``
+    :param target_network: Keep a separate, periodically copied target table
+    :param optimizer_class: The optimizer, SGD by default (it must accept sparse gradients)
+    :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate
+    """
+
+    clip_gradients = False
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        reward_dim: int,
+        target_network: bool = False,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.SGD,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ):
+        self.target_network = target_network
+        super().__init__(
+            observation_space,
+            action_space,
+            lr_schedule,
+            reward_dim,
+            net_arch=[],
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+        )
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        self.sf_net = self.make_sf_net()
+        if self.target_network:
+            self.sf_net_target = self.make_sf_net()
+            self.sf_net_target.load_state_dict(self.sf_net.state_dict())
+        else:
+            self.sf_net_target = self.sf_net
+        self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
+            self.sf_net.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        )
+
+    def make_sf_net(self) -> TabularSFNetwork:  # type: ignore[override]
+        """A new zero-initialised SF table."""
+        return TabularSFNetwork(self.observation_space, self.action_space, self.reward_dim).to(self.device)  # type: ignore[arg-type]
+
+    @staticmethod
+    def sf_loss(current: th.Tensor, target: th.Tensor) -> th.Tensor:
+        """``0.5 · Σ ||target − ψ(s, a)||²`` over batch and objectives (one Q-learning step per sample)."""
+        return 0.5 * (current - target).pow(2).sum()
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return dict(
+            observation_space=self.observation_space,
+            action_space=self.action_space,
+            reward_dim=self.reward_dim,
+            target_network=self.target_network,
+            lr_schedule=self._dummy_schedule,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+        )

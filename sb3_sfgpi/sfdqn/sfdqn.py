@@ -1,0 +1,294 @@
+"""SFDQN: deep (or tabular) Q-learning of successor features from vector rewards."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import LinearSchedule, polyak_update, safe_mean
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.vec_env import vec_env_reward_dim, wrap_mo_env
+from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy, greedy_actions
+
+SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
+
+
+class SFDQN(OffPolicyAlgorithm):
+    """
+    Successor-feature DQN: learns ``ψ(s, a) ∈ R^d`` for the policy that is greedy in ``w · ψ``.
+
+    The TD target of a transition ``(s, a, r, s')`` with vector reward ``r`` is
+    ``r + γ (1 − terminated) ψ_target(s', a*)`` with ``a* = argmax_a w · ψ(s', a)`` (the online network
+    picks, the target network evaluates). Time-limit truncation bootstraps.
+
+    The env must follow the MO-Gymnasium convention (vector reward of shape ``(d,)``, ``reward_space``);
+    it is wrapped in :class:`~sb3_sfgpi.common.vec_env.MOMonitor` and
+    :class:`~sb3_sfgpi.common.vec_env.MODummyVecEnv`. Episode returns are logged scalarised
+    (``rollout/ep_rew_mean`` = ``w · return``) and per objective (``rollout/ep_rew_mean_<i>``).
+
+    :param policy: The policy model to use (``"MlpPolicy"``, ``"TabularPolicy"``, or a class)
+    :param env: The environment to learn from (if registered in Gym, can be str)
+    :param weights: Preference weights ``w`` (length ``d``); ``None`` for equal weights
+    :param learning_rate: The learning rate (``α`` of the tabular policy), constant or a schedule
+    :param buffer_size: Size of the replay buffer
+    :param learning_starts: How many steps of the model to collect transitions for before learning starts
+    :param batch_size: Minibatch size for each gradient update
+    :param tau: The soft update coefficient ("Polyak update", between 0 and 1), 1 for hard update
+    :param gamma: The discount factor
+    :param train_freq: Update the model every ``train_freq`` steps, or a tuple ``(n, "step" | "episode")``
+    :param gradient_steps: How many gradient steps to do after each rollout (-1: as many as env steps)
+    :param replay_buffer_class: Replay buffer class, a subclass of ``MOReplayBuffer``
+    :param replay_buffer_kwargs: Keyword arguments to pass to the replay buffer on creation
+    :param optimize_memory_usage: Enable a memory efficient variant of the replay buffer
+    :param n_steps: Must be 1 (n-step returns are not implemented for vector rewards)
+    :param target_update_interval: Update the target network every ``target_update_interval`` env steps
+    :param exploration_fraction: Fraction of training over which the exploration rate is reduced
+    :param exploration_initial_eps: Initial value of random action probability
+    :param exploration_final_eps: Final value of random action probability
+    :param max_grad_norm: The maximum value for the gradient clipping (not used by the tabular policy)
+    :param stats_window_size: Window size for the rollout logging
+    :param tensorboard_log: The log location for tensorboard (if None, no logging)
+    :param policy_kwargs: Additional arguments to be passed to the policy on creation
+    :param verbose: Verbosity level: 0 for no output, 1 for info messages, 2 for debug messages
+    :param seed: Seed for the pseudo random generators
+    :param device: Device (cpu, cuda, ...) on which the code should be run
+    :param _init_setup_model: Whether or not to build the network at the creation of the instance
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "MlpPolicy": MlpPolicy,
+        "TabularPolicy": TabularPolicy,
+    }
+    policy: SFDQNPolicy
+    replay_buffer: MOReplayBuffer
+
+    def __init__(
+        self,
+        policy: str | type[SFDQNPolicy],
+        env: GymEnv | str | None,
+        weights: np.ndarray | list[float] | None = None,
+        learning_rate: float | Schedule = 1e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 100,
+        batch_size: int = 32,
+        tau: float = 1.0,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 4,
+        gradient_steps: int = 1,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
+        n_steps: int = 1,
+        target_update_interval: int = 10_000,
+        exploration_fraction: float = 0.1,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.05,
+        max_grad_norm: float = 10,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        if n_steps != 1:
+            raise ValueError(f"SFDQN supports only 1-step returns (n_steps=1), got n_steps={n_steps}")
+        if replay_buffer_class is not None and not issubclass(replay_buffer_class, MOReplayBuffer):
+            raise ValueError(
+                f"replay_buffer_class must be a subclass of MOReplayBuffer (vector rewards), got {replay_buffer_class}"
+            )
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size,
+            learning_starts,
+            batch_size,
+            tau,
+            gamma,
+            train_freq,
+            gradient_steps,
+            action_noise=None,
+            replay_buffer_class=replay_buffer_class or MOReplayBuffer,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
+            n_steps=1,
+            policy_kwargs=policy_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            seed=seed,
+            sde_support=False,
+            supported_action_spaces=(spaces.Discrete,),
+            support_multi_env=True,
+        )
+        self.exploration_initial_eps = exploration_initial_eps
+        self.exploration_final_eps = exploration_final_eps
+        self.exploration_fraction = exploration_fraction
+        self.target_update_interval = target_update_interval
+        self._n_calls = 0
+        self.max_grad_norm = max_grad_norm
+        self.exploration_rate = 0.0
+        if self.env is not None:
+            self.reward_dim = vec_env_reward_dim(self.env)
+            self._weights = validate_weights(
+                np.full(self.reward_dim, 1.0 / self.reward_dim) if weights is None else weights, self.reward_dim
+            )
+        if _init_setup_model:
+            self._setup_model()
+
+    @staticmethod
+    def _wrap_env(env: GymEnv, verbose: int = 0, monitor_wrapper: bool = True) -> VecEnv:
+        return wrap_mo_env(env)  # type: ignore[arg-type]
+
+    def _setup_model(self) -> None:
+        self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "reward_dim": self.reward_dim}
+        self.policy_kwargs = {**self.policy_kwargs, "reward_dim": self.reward_dim}
+        super()._setup_model()
+        self.exploration_schedule = LinearSchedule(
+            self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
+        )
+        self.set_weights(self._weights)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """The preference weights ``w`` the policy is trained for and acts with (a copy)."""
+        return self._weights.copy()
+
+    def set_weights(self, weights: np.ndarray | list[float]) -> None:
+        """
+        Set the preference weights to train for and act with.
+
+        :param weights: ``d`` non-negative numbers, not all zero (normalised to sum to one)
+        :raises ValueError: wrong length, negative, NaN or all zero
+        """
+        self._weights = validate_weights(weights, self.reward_dim)
+        self.policy.weights.copy_(th.as_tensor(self._weights, dtype=th.float32))
+
+    def successor_features(self, observation: np.ndarray) -> np.ndarray:
+        """
+        ``ψ(s, ·)`` of the online network.
+
+        :param observation: one observation or a batch
+        :return: shape ``(batch, n_actions, d)``
+        """
+        obs_tensor, _ = self.policy.obs_to_tensor(observation)
+        with th.no_grad():
+            return self.policy.sf_net(obs_tensor).cpu().numpy()
+
+    def _on_step(self) -> None:
+        """Update the exploration rate and, every ``target_update_interval`` steps, the target network."""
+        self._n_calls += 1
+        if self.policy.sf_net_target is not self.policy.sf_net and (
+            self._n_calls % max(self.target_update_interval // self.n_envs, 1) == 0
+        ):
+            polyak_update(self.policy.sf_net.parameters(), self.policy.sf_net_target.parameters(), self.tau)
+        self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
+        self.logger.record("rollout/exploration_rate", self.exploration_rate)
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        sf_net, sf_net_target = self.policy.sf_net, self.policy.sf_net_target
+        losses = []
+        for _ in range(gradient_steps):
+            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
+            with th.no_grad():
+                next_actions = greedy_actions(sf_net(replay_data.next_observations), self.policy.weights)
+                next_psi = sf_net_target(replay_data.next_observations)
+                next_psi = next_psi[th.arange(batch_size), next_actions]
+                target_psi = replay_data.rewards + (1 - replay_data.dones) * self.gamma * next_psi
+            current_psi = sf_net(replay_data.observations)[th.arange(batch_size), replay_data.actions.long().flatten()]
+            loss = self.policy.sf_loss(current_psi, target_psi)
+            losses.append(loss.item())
+            self.policy.optimizer.zero_grad()
+            loss.backward()
+            if self.policy.clip_gradients:
+                th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+            self.policy.optimizer.step()
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/loss", np.mean(losses))
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+        w: np.ndarray | list[float] | None = None,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """
+        ε-greedy action in ``w · ψ(s, ·)`` (greedy if ``deterministic``).
+
+        :param observation: the input observation (one or a batch)
+        :param state: unused (no recurrent policy), returned as is
+        :param episode_start: unused
+        :param deterministic: act greedily, without exploration
+        :param w: weights to act for in this call only; ``None`` for the model's weights
+        :return: the actions and ``state``
+        """
+        if not deterministic and np.random.rand() < self.exploration_rate:
+            vectorized = self.policy.is_vectorized_observation(observation)
+            n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
+            actions = np.array([self.action_space.sample() for _ in range(n_batch)])
+            return (actions if vectorized else actions[0]), state
+        weights = self.policy.weights if w is None else th.as_tensor(validate_weights(w, self.reward_dim)).float()
+        self.policy.set_training_mode(False)
+        obs_tensor, vectorized = self.policy.obs_to_tensor(observation)
+        with th.no_grad():
+            actions = greedy_actions(self.policy.sf_net(obs_tensor), weights.to(self.device)).cpu().numpy()
+        return (actions if vectorized else actions[0]), state
+
+    def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
+        # MOMonitor reports vector returns; the scalar return SB3 logs is w · return for the current w.
+        scalarized = []
+        for info in infos:
+            episode = info.get("episode")
+            if episode is not None and "r_vec" in episode:
+                info = {**info, "episode": {**episode, "r": float(np.dot(self._weights, episode["r_vec"]))}}
+            scalarized.append(info)
+        super()._update_info_buffer(scalarized, dones)
+
+    def dump_logs(self) -> None:
+        assert self.ep_info_buffer is not None
+        vector_returns = [ep_info["r_vec"] for ep_info in self.ep_info_buffer if "r_vec" in ep_info]
+        if vector_returns:
+            for i, value in enumerate(np.mean(vector_returns, axis=0)):
+                self.logger.record(f"rollout/ep_rew_mean_{i}", safe_mean([value]))
+        super().dump_logs()
+
+    def learn(
+        self: SelfSFDQN,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "SFDQN",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfSFDQN:
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "exploration_schedule"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", "policy.optimizer"], []
