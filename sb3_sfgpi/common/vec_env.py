@@ -94,6 +94,8 @@ class MODummyVecEnv(DummyVecEnv):
     :param env_fns: functions returning vector-reward Gymnasium envs, all with the same ``reward_space``
     """
 
+    vector_rewards = True
+
     def __init__(self, env_fns: list[Callable[[], gym.Env]]):
         super().__init__(env_fns)
         dims = {env_reward_dim(env) for env in self.envs}
@@ -108,8 +110,9 @@ def vec_env_reward_dim(venv: VecEnv) -> int:
     """
     Check that a VecEnv passes vector rewards through unchanged and return their dimension.
 
-    Accepted: :class:`MODummyVecEnv` and SB3's ``SubprocVecEnv`` over vector-reward envs, wrapped in
-    any VecEnv wrapper except ``VecMonitor`` and reward-normalising ``VecNormalize``.
+    Accepted: VecEnvs that declare ``vector_rewards = True`` (:class:`MODummyVecEnv`, the per-agent views of
+    :mod:`sb3_sfgpi.multiagent`) and SB3's ``SubprocVecEnv`` over vector-reward envs, wrapped in any VecEnv
+    wrapper except ``VecMonitor`` and reward-normalising ``VecNormalize``.
 
     :param venv: the VecEnv to check
     :return: ``d``
@@ -127,7 +130,7 @@ def vec_env_reward_dim(venv: VecEnv) -> int:
         inner = inner.venv
     if isinstance(inner, DummyVecEnv) and not isinstance(inner, MODummyVecEnv):
         raise ValueError("DummyVecEnv stores scalar rewards; use sb3_sfgpi.common.vec_env.MODummyVecEnv")
-    if not isinstance(inner, (MODummyVecEnv, SubprocVecEnv)):
+    if not (getattr(inner, "vector_rewards", False) or isinstance(inner, SubprocVecEnv)):
         raise ValueError(f"unsupported VecEnv {type(inner).__name__}: use MODummyVecEnv or SubprocVecEnv")
     return _reward_dim_of_space(venv.get_attr("reward_space", indices=[0])[0], venv)
 

@@ -127,8 +127,8 @@ class TabularSFNetwork(BasePolicy):
     """
     Lookup table of successor features, one row per observation value, initialised to zero.
 
-    The row of an observation is its mixed-radix index. The table is an ``nn.Embedding`` with sparse
-    gradients, so an SGD step only touches the rows of the sampled batch.
+    The row of an observation is its mixed-radix index; ``TabularPolicy.optimize`` updates the sampled rows
+    in place.
 
     :param observation_space: a small integer observation space (see :func:`observation_radices`)
     :param action_space: Action space (Discrete)
@@ -151,7 +151,7 @@ class TabularSFNetwork(BasePolicy):
         self.register_buffer("strides", th.as_tensor(strides, dtype=th.long), persistent=False)
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
-        self.table = nn.Embedding(n_states, self.n_actions * reward_dim, sparse=True)
+        self.table = nn.Embedding(n_states, self.n_actions * reward_dim)
         nn.init.zeros_(self.table.weight)
 
     def state_index(self, obs: th.Tensor) -> th.Tensor:
@@ -198,8 +198,6 @@ class SFDQNPolicy(BasePolicy):
 
     sf_net: nn.Module
     sf_net_target: nn.Module
-    #: Whether SFDQN clips the gradient norm (a table is updated exactly, without clipping).
-    clip_gradients = True
 
     def __init__(
         self,
@@ -259,15 +257,23 @@ class SFDQNPolicy(BasePolicy):
     def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         return greedy_actions(self.sf_net(obs), self.weights)
 
-    @staticmethod
-    def sf_loss(current: th.Tensor, target: th.Tensor) -> th.Tensor:
+    def optimize(self, observations: th.Tensor, actions: th.Tensor, target_psi: th.Tensor, max_grad_norm: float) -> float:
         """
-        Loss between predicted and target successor features: Huber, mean over batch and objectives.
+        One gradient step of the Huber loss between ``ψ(s, a)`` and its TD target (mean over batch and objectives).
 
-        :param current: ``ψ(s, a)``, shape ``(batch, d)``
-        :param target: TD target, shape ``(batch, d)``
+        :param observations: batch of observations
+        :param actions: the actions taken, shape ``(batch,)``
+        :param target_psi: the TD targets, shape ``(batch, d)``
+        :param max_grad_norm: gradient-norm clipping threshold
+        :return: the loss before the step
         """
-        return F.smooth_l1_loss(current, target)
+        current_psi = self.sf_net(observations)[th.arange(len(actions)), actions]
+        loss = F.smooth_l1_loss(current_psi, target_psi)
+        self.optimizer.zero_grad()
+        loss.backward()
+        th.nn.utils.clip_grad_norm_(self.sf_net.parameters(), max_grad_norm)
+        self.optimizer.step()
+        return loss.item()
 
     def set_training_mode(self, mode: bool) -> None:
         self.sf_net.set_training_mode(mode)
@@ -295,9 +301,8 @@ class TabularPolicy(SFDQNPolicy):
     """
     Tabular successor features: multi-objective Q-learning with experience replay.
 
-    Trained by plain SGD on ``0.5 · Σ_batch ||target − ψ(s, a)||²``, so each sampled transition moves its
-    entry by ``α · (target − ψ)`` with ``α`` the learning rate, exactly the tabular update of the paper
-    (Table 1: α = 0.1). By default there is no separate target network (``target_network=False``):
+    Each sampled transition moves its entry by ``α · (target − ψ)`` with ``α`` the learning rate: the SGD step
+    on ``0.5 · Σ_batch ||target − ψ(s, a)||²``, exactly the tabular update of the paper (Table 1: α = 0.1). By default there is no separate target network (``target_network=False``):
     targets read the table itself, as in Q-learning.
 
     :param observation_space: a small integer observation space
@@ -305,11 +310,10 @@ class TabularPolicy(SFDQNPolicy):
     :param lr_schedule: Learning rate schedule (``α``)
     :param reward_dim: Number of objectives ``d``
     :param target_network: Keep a separate, periodically copied target table
-    :param optimizer_class: The optimizer, SGD by default (it must accept sparse gradients)
+    :param optimizer_class: The optimizer, SGD by default (it holds the learning rate ``α``; the update itself
+        is done in place by :meth:`optimize`)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate
     """
-
-    clip_gradients = False
 
     def __init__(
         self,
@@ -347,10 +351,27 @@ class TabularPolicy(SFDQNPolicy):
         """A new zero-initialised SF table."""
         return TabularSFNetwork(self.observation_space, self.action_space, self.reward_dim).to(self.device)  # type: ignore[arg-type]
 
-    @staticmethod
-    def sf_loss(current: th.Tensor, target: th.Tensor) -> th.Tensor:
-        """``0.5 · Σ ||target − ψ(s, a)||²`` over batch and objectives (one Q-learning step per sample)."""
-        return 0.5 * (current - target).pow(2).sum()
+    def optimize(self, observations: th.Tensor, actions: th.Tensor, target_psi: th.Tensor, max_grad_norm: float) -> float:
+        """
+        ``ψ(s, a) ← ψ(s, a) + α (target − ψ(s, a))`` for every sampled transition (repeats add up).
+
+        This is the SGD step on ``0.5 · Σ ||target − ψ(s, a)||²`` with learning rate ``α``, done in place with
+        ``index_add_`` (autograd through a sparse table costs a hundred times more). ``α`` is the optimizer's
+        current learning rate, so SB3's learning-rate schedules apply.
+
+        :param observations: batch of observations
+        :param actions: the actions taken, shape ``(batch,)``
+        :param target_psi: the TD targets, shape ``(batch, d)``
+        :param max_grad_norm: unused: the tabular update is exact, without clipping
+        :return: the loss before the step
+        """
+        learning_rate = self.optimizer.param_groups[0]["lr"]
+        with th.no_grad():
+            entries = self.sf_net.table.weight.view(-1, self.reward_dim)
+            flat = self.sf_net.state_index(observations) * self.sf_net.n_actions + actions
+            td_error = target_psi - entries[flat]
+            entries.index_add_(0, flat, td_error, alpha=learning_rate)
+        return 0.5 * td_error.pow(2).sum().item()
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return dict(

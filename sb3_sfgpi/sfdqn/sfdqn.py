@@ -205,18 +205,13 @@ class SFDQN(OffPolicyAlgorithm):
         for _ in range(gradient_steps):
             replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
             with th.no_grad():
-                next_actions = greedy_actions(sf_net(replay_data.next_observations), self.policy.weights)
-                next_psi = sf_net_target(replay_data.next_observations)
+                next_online = sf_net(replay_data.next_observations)
+                next_actions = greedy_actions(next_online, self.policy.weights)
+                next_psi = next_online if sf_net_target is sf_net else sf_net_target(replay_data.next_observations)
                 next_psi = next_psi[th.arange(batch_size), next_actions]
                 target_psi = replay_data.rewards + (1 - replay_data.dones) * self.gamma * next_psi
-            current_psi = sf_net(replay_data.observations)[th.arange(batch_size), replay_data.actions.long().flatten()]
-            loss = self.policy.sf_loss(current_psi, target_psi)
-            losses.append(loss.item())
-            self.policy.optimizer.zero_grad()
-            loss.backward()
-            if self.policy.clip_gradients:
-                th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
-            self.policy.optimizer.step()
+            actions = replay_data.actions.long().flatten()
+            losses.append(self.policy.optimize(replay_data.observations, actions, target_psi, self.max_grad_norm))
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/loss", np.mean(losses))
@@ -239,12 +234,13 @@ class SFDQN(OffPolicyAlgorithm):
         :param w: weights to act for in this call only; ``None`` for the model's weights
         :return: the actions and ``state``
         """
+        # Validate w first: an exploratory action must not hide bad weights.
+        weights = self.policy.weights if w is None else th.as_tensor(validate_weights(w, self.reward_dim)).float()
         if not deterministic and np.random.rand() < self.exploration_rate:
             vectorized = self.policy.is_vectorized_observation(observation)
             n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
             actions = np.array([self.action_space.sample() for _ in range(n_batch)])
             return (actions if vectorized else actions[0]), state
-        weights = self.policy.weights if w is None else th.as_tensor(validate_weights(w, self.reward_dim)).float()
         self.policy.set_training_mode(False)
         obs_tensor, vectorized = self.policy.obs_to_tensor(observation)
         with th.no_grad():

@@ -1,0 +1,347 @@
+"""Independent SFDQN learners stepping one PettingZoo ParallelEnv in lockstep.
+
+Each agent has its own :class:`~sb3_sfgpi.sfdqn.SFDQN` (own network, own replay buffer), driven through
+SB3's low-level API (``_setup_learn``, ``_sample_action``, ``_store_transition``, ``train``) so that its
+logger, callbacks and save/load work as in ``learn()``. The runner itself behaves like an SB3 algorithm
+towards a runner-level callback (e.g. :class:`~sb3_sfgpi.callbacks.OLSCallback`): ``learn(total_timesteps,
+callback)`` calls ``callback.on_step()`` after every joint step, and a callback returning False stops it.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.logger import Logger, configure
+from stable_baselines3.common.type_aliases import MaybeCallback, TrainFrequencyUnit
+from stable_baselines3.common.vec_env import VecEnv
+from torch import nn
+from tqdm.auto import tqdm
+
+from sb3_sfgpi.common.evaluation import EpisodeReturns, run_episodes
+from sb3_sfgpi.sfdqn import SFDQN
+
+#: Builds the learner of an agent: ``(agent, per-agent VecEnv, weights, seed) -> SFDQN``.
+LearnerFactory = Callable[[str, VecEnv, np.ndarray, int], SFDQN]
+
+
+def derive_seed(seed: int, *parts: Any) -> int:
+    """A seed for a sub-task (an iteration, an agent, ...) that depends only on ``seed`` and ``parts``."""
+    return zlib.crc32(repr((seed, *parts)).encode()) & 0x7FFFFFFF
+
+
+class AgentVecEnv(VecEnv):
+    """
+    One agent's view of a shared ParallelEnv, as the single-env VecEnv its SFDQN learner expects.
+
+    It is never stepped by the learner: the runner steps the shared env for all agents and hands each
+    learner its transition. ``reset()`` returns the agent's current observation.
+
+    :param env: the shared env
+    :param agent: the agent's name
+    """
+
+    vector_rewards = True
+
+    def __init__(self, env: ParallelEnv, agent: str):
+        super().__init__(1, env.observation_space(agent), env.action_space(agent))
+        self.agent = agent
+        self.reward_space = env.reward_space(agent)  # type: ignore[attr-defined]
+        self.current_obs: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        assert self.current_obs is not None, "the runner must reset the shared env first"
+        return self.current_obs[None]
+
+    def step_async(self, actions: np.ndarray) -> None:
+        raise RuntimeError(f"{self.agent}'s view cannot be stepped alone: MultiAgentRunner steps the shared env")
+
+    def step_wait(self) -> Any:
+        raise RuntimeError(f"{self.agent}'s view cannot be stepped alone: MultiAgentRunner steps the shared env")
+
+    def close(self) -> None:
+        pass
+
+    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+        return [getattr(self, attr_name)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any) -> list[Any]:
+        raise RuntimeError(f"{self.agent}'s view has no env methods")
+
+    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+        return [False]
+
+    def get_images(self) -> list[np.ndarray | None]:
+        return [None]
+
+
+def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
+    """
+    A factory making ``SFDQN(policy, view, weights=..., seed=..., **kwargs)``.
+
+    :param sfdqn_kwargs: SFDQN arguments (``policy`` defaults to ``"MlpPolicy"``)
+    """
+    kwargs = {"policy": "MlpPolicy", **sfdqn_kwargs}
+
+    def make(agent: str, view: VecEnv, weights: np.ndarray, seed: int) -> SFDQN:
+        return SFDQN(env=view, weights=weights, seed=seed, **kwargs)
+
+    return make
+
+
+class MultiAgentRunner:
+    """
+    Independent learners, one per agent, trained in lockstep on a shared PettingZoo ParallelEnv.
+
+    Agents whose episode ended (terminated or truncated) store no further transitions until the shared
+    env is reset, which happens when no agent is left. A time-limit truncation is stored as such
+    (it bootstraps), a termination is not.
+
+    :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents
+    :param learner_factory: builds an agent's learner; see :func:`default_learner_factory`
+    :param seed: seed of the run (learners and resets derive theirs from it)
+    :param gamma: discount of the Monte-Carlo evaluation (default: the learners')
+    :param learner_callback: builds a callback for each new learner (e.g. a checkpoint callback)
+    :param tensorboard_log: directory of the TensorBoard logs (runner and learners), or None
+    :param verbose: verbosity of the runner-level logger
+    """
+
+    def __init__(
+        self,
+        env: ParallelEnv,
+        learner_factory: LearnerFactory | None = None,
+        seed: int = 0,
+        gamma: float | None = None,
+        learner_callback: Callable[[str], BaseCallback] | None = None,
+        tensorboard_log: str | None = None,
+        verbose: int = 0,
+    ):
+        self.env = env
+        self.agents: list[str] = list(env.possible_agents)
+        self.learner_factory = learner_factory or default_learner_factory()
+        self.seed = seed
+        self.learner_callback = learner_callback
+        self.tensorboard_log = tensorboard_log
+        self.verbose = verbose
+        self.views = {agent: AgentVecEnv(env, agent) for agent in self.agents}
+        self._check_homogeneous()
+        self.learners: dict[str, SFDQN] = {}
+        self._learner_callbacks: dict[str, BaseCallback] = {}
+        self._gamma = gamma
+        self.num_timesteps = 0
+        self.iteration = 0
+        self.logger: Logger = configure(None, ["stdout"] if verbose else [""])
+        self._start_time = time.time()
+
+    def _check_homogeneous(self) -> None:
+        first = self.views[self.agents[0]]
+        for view in self.views.values():
+            if (view.observation_space, view.action_space, view.reward_space) != (
+                first.observation_space,
+                first.action_space,
+                first.reward_space,
+            ):
+                raise ValueError("MA-SFOLS shares policies between agents: all agents need the same spaces")
+            if not isinstance(view.action_space, spaces.Discrete):
+                raise ValueError(f"SFDQN needs Discrete actions, got {view.action_space}")
+
+    @property
+    def reward_dim(self) -> int:
+        return int(self.views[self.agents[0]].reward_space.shape[0])
+
+    @property
+    def gamma(self) -> float:
+        if self._gamma is not None:
+            return self._gamma
+        if not self.learners:
+            raise ValueError("gamma is known once learners exist; pass gamma= to the runner")
+        return self.learners[self.agents[0]].gamma
+
+    def get_env(self) -> ParallelEnv:
+        """The shared env (what SB3 callbacks see as ``training_env``)."""
+        return self.env
+
+    def set_logger(self, logger: Logger) -> None:
+        """Use ``logger`` for the runner-level records (e.g. OLS progress and evaluations)."""
+        self.logger = logger
+
+    def start_iteration(
+        self,
+        weights: dict[str, np.ndarray],
+        iteration: int,
+        total_timesteps: int,
+        init_networks: dict[str, nn.Module] | None = None,
+    ) -> None:
+        """
+        Give every agent a new learner for its weights and reset the shared env.
+
+        Everything an iteration does depends only on ``(seed, iteration, agent)``, the weights and the
+        initial networks, so a resumed run repeats an interrupted iteration exactly.
+
+        :param weights: agent -> preference weights
+        :param iteration: index of the iteration (for seeds and log names)
+        :param total_timesteps: env steps the iteration will run (for the learners' schedules)
+        :param init_networks: agent -> SF network to start from (transfer), or None to start fresh
+        """
+        self.iteration = iteration
+        self._close_learners()
+        for agent in self.agents:
+            learner = self.learner_factory(agent, self.views[agent], weights[agent], derive_seed(self.seed, iteration, agent))
+            if init_networks and agent in init_networks:
+                learner.policy.sf_net.load_state_dict(init_networks[agent].state_dict())
+                learner.policy.sf_net_target.load_state_dict(init_networks[agent].state_dict())
+            if learner.train_freq.unit != TrainFrequencyUnit.STEP:  # type: ignore[union-attr]
+                raise ValueError("the multi-agent runner supports train_freq in steps only")
+            self.learners[agent] = learner
+        self._reset_env(derive_seed(self.seed, iteration, "reset"))
+        for agent, learner in self.learners.items():
+            if self.tensorboard_log is not None:
+                learner.tensorboard_log = self.tensorboard_log
+            _, callback = learner._setup_learn(
+                total_timesteps,
+                self.learner_callback(agent) if self.learner_callback else None,
+                reset_num_timesteps=True,
+                tb_log_name=f"{agent}_iter{iteration:03d}",
+            )
+            callback.on_training_start(locals(), globals())
+            callback.on_rollout_start()
+            self._learner_callbacks[agent] = callback
+
+    def _reset_env(self, seed: int | None = None) -> None:
+        obs, _ = self.env.reset(seed=seed)
+        for agent in self.agents:
+            batched = np.asarray(obs[agent])[None]
+            self.views[agent].current_obs = batched[0]
+            if agent in self.learners:
+                self.learners[agent]._last_obs = batched  # type: ignore[assignment]
+                self.learners[agent]._last_original_obs = batched  # type: ignore[assignment]
+
+    def step(self) -> bool:
+        """
+        One joint step: every live agent acts, stores its transition and trains when due.
+
+        :return: False if a learner's callback asked to stop
+        """
+        actions, buffer_actions = {}, {}
+        for agent in self.env.agents:
+            learner = self.learners[agent]
+            action, buffer_action = learner._sample_action(learner.learning_starts, None, 1)
+            actions[agent], buffer_actions[agent] = int(action[0]), buffer_action
+        obs, rewards, terminations, truncations, infos = self.env.step(actions)
+        self.num_timesteps += 1
+        keep_going = True
+        for agent in actions:
+            keep_going &= self._learner_step(
+                agent, buffer_actions[agent], obs[agent], rewards[agent], terminations[agent], truncations[agent], infos[agent]
+            )
+        if not self.env.agents:
+            self._reset_env()
+        return keep_going
+
+    def _learner_step(
+        self, agent: str, buffer_action: np.ndarray, obs: Any, reward: Any, terminated: bool, truncated: bool, info: dict
+    ) -> bool:
+        learner = self.learners[agent]
+        callback = self._learner_callbacks[agent]
+        done = terminated or truncated
+        info = dict(info)
+        monitor = self._monitors.setdefault(agent, [np.zeros(self.reward_dim), 0])
+        monitor[0] = monitor[0] + reward
+        monitor[1] += 1
+        if done:
+            info["terminal_observation"] = obs
+            info["TimeLimit.truncated"] = truncated and not terminated
+            info["episode"] = {"r_vec": monitor[0], "l": monitor[1], "t": round(time.time() - self._start_time, 6)}
+            del self._monitors[agent]
+        learner.num_timesteps += 1
+        callback.update_locals(locals())
+        keep_going = callback.on_step()
+        learner._update_info_buffer([info], np.array([done]))
+        learner._store_transition(
+            learner.replay_buffer,
+            buffer_action,
+            np.asarray(obs)[None],
+            np.asarray(reward, dtype=np.float32)[None],
+            np.array([done]),
+            [info],
+        )
+        learner._update_current_progress_remaining(learner.num_timesteps, learner._total_timesteps)
+        learner._on_step()
+        if done:
+            learner._episode_num += 1
+        if learner.num_timesteps > learner.learning_starts and learner.num_timesteps % learner.train_freq.frequency == 0:  # type: ignore[union-attr]
+            callback.on_rollout_end()
+            learner.train(gradient_steps=max(learner.gradient_steps, 1), batch_size=learner.batch_size)
+            callback.on_rollout_start()
+        return bool(keep_going)
+
+    def end_iteration(self) -> None:
+        """Close the learners' callbacks and flush their logs."""
+        for agent, callback in self._learner_callbacks.items():
+            callback.on_rollout_end()
+            callback.on_training_end()
+            if self.learners[agent]._episode_num > 0:
+                self.learners[agent].dump_logs()
+        self._learner_callbacks = {}
+
+    def _close_learners(self) -> None:
+        if self._learner_callbacks:
+            self.end_iteration()
+        self._monitors: dict[str, list] = {}
+
+    def evaluate_learners(self, n_episodes: int, seed: int) -> EpisodeReturns:
+        """
+        Monte-Carlo returns of the learners' greedy policies, all agents acting together.
+
+        The shared env is reset afterwards, so training resumes on a fresh episode.
+        """
+
+        def act(observations: dict[str, Any]) -> dict[str, int]:
+            return {a: int(self.learners[a].predict(o, deterministic=True)[0]) for a, o in observations.items()}
+
+        returns = run_episodes(self.env, act, n_episodes, self.gamma, seed=seed)
+        self._reset_env()
+        self._monitors = {}
+        return returns
+
+    def learn(self, total_timesteps: int, callback: MaybeCallback = None, progress_bar: bool = False) -> MultiAgentRunner:
+        """
+        Step the shared env until ``total_timesteps`` joint steps or until a callback returns False.
+
+        The runner-level callback decides the learners' weights (see :class:`~sb3_sfgpi.callbacks.OLSCallback`);
+        it must call :meth:`start_iteration` in its ``_on_training_start``.
+
+        :param total_timesteps: joint env steps in total (a resumed run counts those already done)
+        :param callback: runner-level callback(s)
+        :param progress_bar: show a progress bar over all steps
+        """
+        if isinstance(callback, list):
+            callback = CallbackList(callback)
+        if callback is None or callable(callback) and not isinstance(callback, BaseCallback):
+            raise ValueError("MultiAgentRunner.learn needs a runner-level callback such as OLSCallback")
+        callback.init_callback(self)  # type: ignore[arg-type]
+        callback.on_training_start(locals(), globals())
+        if not self.learners:  # the callback has nothing to train (e.g. a finished run was resumed)
+            callback.on_training_end()
+            return self
+        bar = tqdm(total=total_timesteps, initial=self.num_timesteps, desc="training", unit="step", disable=not progress_bar)
+        try:
+            while self.num_timesteps < total_timesteps:
+                keep_going = self.step()
+                bar.update(1)
+                callback.update_locals(locals())
+                if not callback.on_step() or not keep_going:
+                    break
+        finally:
+            bar.close()
+        callback.on_training_end()
+        return self
