@@ -89,6 +89,8 @@ class OLSCallback(BaseCallback):
         super().__init__(verbose)
         if algorithm not in ALGORITHMS:
             raise ValueError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}")
+        if resume and run_dir is None:
+            raise ValueError("resume=True needs the run_dir to resume from")
         if steps_per_iteration < 1:
             raise ValueError(f"steps_per_iteration must be positive, got {steps_per_iteration}")
         self.steps_per_iteration = steps_per_iteration
@@ -111,15 +113,14 @@ class OLSCallback(BaseCallback):
     def _on_training_start(self) -> None:
         d = self.model.reward_dim
         self.test_weights = np.array([validate_weights(w, d, "test weight") for w in self.test_weights])
-        checkpoint = self._load_checkpoint() if self.resume else None
-        if checkpoint is None:
+        if self.resume and self.run_dir is not None and (self.run_dir / CHECKPOINT).exists():
+            weights = self._load_checkpoint()
+        else:
             self.ols = OLS(d, tolerance=self.tolerance)
             self.policy_set = GPIPolicy()
             self.iteration = 0
             self.model.num_timesteps = 0
             weights = self._next_weights()
-        else:
-            weights = checkpoint
         self._elapsed_before = self.history[-1]["wall_time"] if self.history else 0.0
         self._start_time = time.time()
         if weights is None or self._reached_max_iterations():
@@ -186,9 +187,9 @@ class OLSCallback(BaseCallback):
                 self.policy_set.add(runner.learners[agent], value=value, agent=agent, iteration=self.iteration)
         self._evaluate_gpi()
         self.iteration += 1
-        next_weights = None if self._reached_max_iterations() else self._next_weights()
+        next_weights = self._next_weights()  # saved even at the iteration cap, so a resume can go further
         self._save_checkpoint(next_weights)
-        if next_weights is None:
+        if next_weights is None or self._reached_max_iterations():
             self.finished = True
         else:
             self._start(next_weights)
@@ -268,15 +269,12 @@ class OLSCallback(BaseCallback):
                 "n_policies": len(self.policy_set),
                 "ols": self.ols.state_dict(),
                 "next_weights": None if next_weights is None else {a: w.tolist() for a, w in next_weights.items()},
-                "finished": next_weights is None,
             },
         )
 
     def _load_checkpoint(self) -> dict[str, np.ndarray] | None:
-        """Restore the state of the last finished iteration; return the next weights (None if finished)."""
-        assert self.run_dir is not None, "resume needs a run_dir"
-        if not (self.run_dir / CHECKPOINT).exists():
-            return None
+        """Restore the state of the last finished iteration; return the next weights (None if OLS ended)."""
+        assert self.run_dir is not None
         state = read_json(self.run_dir / CHECKPOINT, "checkpoint")
         if state.get("algorithm") != self.algorithm:
             raise ValueError(f"{self.run_dir} holds a {state.get('algorithm')!r} run, not {self.algorithm!r}")
@@ -289,7 +287,6 @@ class OLSCallback(BaseCallback):
         self.iteration = int(state["iteration"])
         self.model.num_timesteps = int(state["timesteps"])
         if state["next_weights"] is None:
-            self.finished = True
             return None
         return {a: np.asarray(w) for a, w in state["next_weights"].items()}
 

@@ -207,6 +207,25 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def align_runs(runs: list[dict[int, float]]) -> np.ndarray:
+    """
+    One row per run over the union of their iterations; a run that stopped early (OLS ended: its set is
+    complete) keeps its last value.
+
+    :param runs: per run, iteration -> value
+    :return: shape ``(n_runs, n_iterations)``
+    """
+    iterations = sorted(set().union(*runs))
+    rows = []
+    for run in runs:
+        last, row = np.nan, []
+        for i in iterations:
+            last = run.get(i, last)
+            row.append(last)
+        rows.append(row)
+    return np.array(rows)
+
+
 def _plot(args: argparse.Namespace) -> int:
     import csv
 
@@ -228,11 +247,9 @@ def _plot(args: argparse.Namespace) -> int:
     labels = {"ma-sfols": "MA-SFOLS + GPI", "random": "Random + GPI"}
     fig, ax = plt.subplots(figsize=(6, 4))
     for algorithm, runs in sorted(curves.items()):
+        values = align_runs(runs)
         iterations = sorted(set().union(*runs))
-        # A run that stopped early (OLS ended) keeps its last value.
-        values = np.array([[run.get(i, run[max(k for k in run if k <= i)] if any(k <= i for k in run) else np.nan)
-                            for i in iterations] for run in runs])
-        mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0)
+        mean, std = values.mean(axis=0), values.std(axis=0)
         ax.plot(iterations, mean, marker="o", label=f"{labels.get(algorithm, algorithm)} ({len(runs)} seeds)")
         ax.fill_between(iterations, mean - std, mean + std, alpha=0.2)
     ax.set_xlabel("iteration")

@@ -1,0 +1,498 @@
+"""Multi-objective traffic-signal control with pedestrians as a PettingZoo ``ParallelEnv`` (paper Sec. 5.2).
+
+One agent per traffic light (agent id = traffic-light id). Every ``delta_time`` simulated seconds each
+agent observes its intersection (Eq. 22), chooses *keep* (0) or *change* (1), and receives the vector
+reward (Eq. 23)::
+
+    r_t = [W^v_t - W^v_{t+1},  W^p_t - W^p_{t+1}]
+
+where ``W^v`` / ``W^p`` are the cumulative waiting times of the vehicles on its incoming lanes and of
+the pedestrians waiting to cross (Eqs. 24-25, see :mod:`.monitor`).
+
+SUMO runs in-process through libsumo (default), or through TraCI (``backend="traci"``; ``gui=True``
+opens sumo-gui). The environment advances SUMO one second at a time and drives the lights itself
+with ``setRedYellowGreenState``, so SUMO's static program never advances on its own. With
+``signal_control="fixed-time"`` or ``"actuated"`` the lights follow SUMO's static or actuated program
+instead and actions are ignored (the baselines, see :func:`.baselines.run_program_episode`).
+
+Example::
+
+    env = TrafficSignalEnv(num_seconds=500, seed=0)
+    obs, infos = env.reset()
+    while env.agents:
+        obs, rewards, terms, truncs, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
+    print(env.episode_metrics())
+    env.close()
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import weakref
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from .monitor import IntersectionMonitor
+from .scenario import ACTUATED_FILE, NET_FILE, ROUTE_FILE, trim_demand
+from .signals import KEEP, SignalController, SignalProgram
+from .sumo_backend import SumoSimulation
+from .topology import IntersectionLayout, read_network
+
+SIGNAL_CONTROLS = ("agent", "fixed-time", "actuated")
+"""Who drives the lights: the agents, SUMO's static program, or SUMO's actuated program."""
+
+REWARD_DIM = 2
+"""Objectives: 0 = vehicle waiting time, 1 = pedestrian waiting time."""
+
+OBJECTIVES = ("vehicle_waiting_time", "pedestrian_waiting_time")
+"""Names of the reward components, in order."""
+
+EPISODE_METRIC_KEYS = (
+    "vehicle_waiting_time_total",
+    "vehicle_waiting_time_mean",
+    "pedestrian_waiting_time_total",
+    "pedestrian_waiting_time_mean",
+    "vehicles_departed",
+    "vehicles_arrived",
+    "pedestrians_departed",
+    "pedestrians_arrived",
+    "sim_time",
+)
+"""Keys of :meth:`TrafficSignalEnv.episode_metrics`."""
+
+
+def _check_int(name: str, value: Any, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low} (seconds), got {value!r}")
+    return int(value)
+
+
+class TrafficSignalEnv(ParallelEnv):
+    """Traffic lights with vehicles and pedestrians, one keep/change agent per light, vector rewards.
+
+    Observation of an agent (float32, all entries in [0, 1]), Eq. 22::
+
+        [rho_0, rho_1, tau, density_1 .. density_L, queue_1 .. queue_L]
+
+    * ``rho``: one-hot of the green phase shown (during yellow: the green that comes next);
+      phase 0 = N-S vehicles + pedestrians, phase 1 = W-E vehicles in the default network;
+    * ``tau``: elapsed green time / ``max_green`` (0 during yellow);
+    * for each incoming lane ``l`` -- the controlled vehicle lanes, then the incoming sidewalk and the
+      waiting area in front of the crossing -- number of vehicles/persons (density) and of queued ones
+      (vehicles below 0.1 m/s, persons standing) divided by the lane's capacity, clipped to 1.
+
+    Actions: ``Discrete(2)``: 0 keep, 1 change. A change before ``min_green`` seconds of green is
+    ignored; a green is ended after ``max_green`` seconds whatever the action; a change shows the
+    yellow state for ``yellow_time`` seconds, during which actions are ignored.
+
+    Rewards: ``float32`` arrays of shape ``(2,)`` (vehicles, pedestrians), in seconds.
+
+    Infos (every step, per agent): ``vehicle_wait_total`` (``W^v``), ``vehicle_wait_mean`` (per
+    incoming vehicle), ``pedestrian_wait_total`` (``W^p``), ``pedestrian_wait_mean`` (per person on
+    the approach), ``vehicles_incoming``, ``pedestrians_incoming``, ``green_phase``, ``yellow`` and
+    ``time``. At the last step every agent's info also holds ``"episode"``: :meth:`episode_metrics`.
+
+    The episode ends by truncation (time limit) after ``num_seconds`` simulated seconds.
+
+    :param net_file: SUMO network (default: the three-intersection scenario).
+    :param route_file: SUMO demand (flows are cut at ``num_seconds`` in a temporary copy, because
+        SUMO creates every person of a ``personFlow`` when it loads the file).
+    :param num_seconds: episode length [s].
+    :param delta_time: simulated seconds between two decisions.
+    :param yellow_time: duration of the yellow phase between two greens [s].
+    :param min_green: minimum green time [s].
+    :param max_green: maximum green time [s] (also the normaliser of ``tau``).
+    :param signal_control: ``"agent"`` (actions drive the lights), ``"fixed-time"`` (SUMO's static
+        program in the network) or ``"actuated"`` (SUMO's actuated program from
+        ``actuated_file``); in the last two cases actions are ignored.
+    :param backend: ``"libsumo"`` (in-process, fast; one live simulation per process) or ``"traci"``;
+        default: libsumo, or traci when ``gui`` is set.
+    :param gui: show the simulation in sumo-gui (TraCI backend).
+    :param seed: seed of SUMO (``--seed``) for the first episode and of the seeds of the later ones;
+        ``reset(seed=...)`` overrides it.
+    :param actuated_file: additional file with the actuated programs (``signal_control="actuated"``).
+    :param additional_files: further SUMO additional files.
+    :param sumo_args: further SUMO command-line options.
+    :param sumo_warnings: let SUMO print its warnings (e.g. jammed pedestrians).
+    :param render_mode: ``None`` or ``"human"`` (the latter implies ``gui=True``).
+    :raises ValueError: for invalid arguments, or an invalid network file (message names the file).
+    :raises FileNotFoundError: if the network or route file does not exist.
+    :raises SumoNotFoundError: if SUMO / libsumo / traci is not installed (``ImportError`` subclass).
+    """
+
+    metadata = {"name": "sfgpi_traffic_v0", "render_modes": ["human"], "is_parallelizable": True}
+
+    def __init__(
+        self,
+        net_file: str | os.PathLike[str] = NET_FILE,
+        route_file: str | os.PathLike[str] = ROUTE_FILE,
+        *,
+        num_seconds: int = 500,
+        delta_time: int = 5,
+        yellow_time: int = 3,
+        min_green: int = 10,
+        max_green: int = 50,
+        signal_control: str = "agent",
+        backend: str | None = None,
+        gui: bool = False,
+        seed: int | None = None,
+        actuated_file: str | os.PathLike[str] = ACTUATED_FILE,
+        additional_files: Sequence[str | os.PathLike[str]] = (),
+        sumo_args: Sequence[str] = (),
+        sumo_warnings: bool = False,
+        render_mode: str | None = None,
+    ) -> None:
+        super().__init__()
+        if render_mode not in (None, "human"):
+            raise ValueError(f"render_mode must be None or 'human', got {render_mode!r}")
+        if signal_control not in SIGNAL_CONTROLS:
+            raise ValueError(f"signal_control must be one of {SIGNAL_CONTROLS}, got {signal_control!r}")
+        self.num_seconds = _check_int("num_seconds", num_seconds, 1)
+        self.delta_time = _check_int("delta_time", delta_time, 1)
+        self.yellow_time = _check_int("yellow_time", yellow_time, 1)
+        self.min_green = _check_int("min_green", min_green, 0)
+        self.max_green = _check_int("max_green", max_green, 1)
+        if self.min_green > self.max_green:
+            raise ValueError(f"min_green ({min_green}) must not exceed max_green ({max_green})")
+        self.signal_control = signal_control
+        self.render_mode = render_mode
+        gui = gui or render_mode == "human"
+        self.backend = backend if backend is not None else ("traci" if gui else "libsumo")
+        self.gui = gui
+
+        self.net_file = Path(net_file).resolve()
+        self.route_file = Path(route_file).resolve()
+        if not self.route_file.is_file():
+            raise FileNotFoundError(f"route file {self.route_file} does not exist")
+        extra = [Path(f).resolve() for f in additional_files]
+        if signal_control == "actuated":
+            extra.insert(0, Path(actuated_file).resolve())
+        for f in extra:
+            if not f.is_file():
+                raise FileNotFoundError(f"additional file {f} does not exist")
+        self.additional_files = tuple(extra)
+        self.sumo_args = tuple(str(a) for a in sumo_args)
+        self.sumo_warnings = sumo_warnings
+
+        self.layouts: dict[str, IntersectionLayout] = read_network(self.net_file)
+        self._programs = {
+            tid: SignalProgram.from_phases([s for s, _ in lay.phases], tid) for tid, lay in self.layouts.items()
+        }
+        self.possible_agents: list[str] = list(self.layouts)
+        self.agents: list[str] = []
+        self.observation_spaces = {
+            a: spaces.Box(0.0, 1.0, shape=(3 + 2 * lay.n_lanes,), dtype=np.float32) for a, lay in self.layouts.items()
+        }
+        self.action_spaces = {a: spaces.Discrete(2) for a in self.possible_agents}
+        self.reward_spaces = {
+            a: spaces.Box(-np.inf, np.inf, shape=(REWARD_DIM,), dtype=np.float32) for a in self.possible_agents
+        }
+
+        self._sim = SumoSimulation(self.backend, gui)  # checks that SUMO is installed; starts nothing
+        self._seed = seed
+        self._rng = np.random.default_rng(seed)
+        self._tmpdir: str | None = None
+        self._finalizer: weakref.finalize | None = None
+        self._route_for_episode: Path | None = None
+        self._api: Any = None
+        self._monitors: list[IntersectionMonitor] = []
+        self._controllers = [
+            SignalController(self._programs[a], self.min_green, self.max_green, self.yellow_time)
+            for a in self.possible_agents
+        ]
+        self._lookups = [self._programs[a].lookup() for a in self.possible_agents]
+        self._time = 0
+        self._last: list[tuple[float, int, float, int]] = []
+        self._counts = [0, 0, 0, 0]  # departed vehicles, arrived vehicles, departed persons, arrived persons
+        self.sumo_seed: int | None = None
+        """SUMO seed of the current episode."""
+
+    # ------------------------------------------------------------------------------------- spaces
+    def observation_space(self, agent: str) -> spaces.Box:
+        """Observation space of ``agent`` (the same object on every call)."""
+        return self.observation_spaces[agent]
+
+    def action_space(self, agent: str) -> spaces.Discrete:
+        """Action space of ``agent``: ``Discrete(2)`` (0 keep, 1 change)."""
+        return self.action_spaces[agent]
+
+    def reward_space(self, agent: str) -> spaces.Box:
+        """Reward space of ``agent``: ``Box(-inf, inf, (2,), float32)`` (vehicles, pedestrians)."""
+        return self.reward_spaces[agent]
+
+    @property
+    def sim(self) -> SumoSimulation:
+        """The SUMO simulation (its ``api`` is the libsumo module or the TraCI connection)."""
+        return self._sim
+
+    @property
+    def sim_time(self) -> int:
+        """Current simulation time [s]."""
+        return self._time
+
+    # -------------------------------------------------------------------------------------- reset
+    def _episode_route_file(self) -> Path:
+        if self._route_for_episode is None:
+            if self._tmpdir is None:
+                self._tmpdir = tempfile.mkdtemp(prefix="sfgpi_traffic_")
+                self._finalizer = weakref.finalize(self, shutil.rmtree, self._tmpdir, True)
+            self._route_for_episode = trim_demand(self.route_file, self.num_seconds, self._tmpdir)
+        return self._route_for_episode
+
+    def sumo_command(self, seed: int) -> list[str]:
+        """SUMO options of an episode (without the executable).
+
+        :param seed: SUMO's random seed.
+        :return: the options.
+        """
+        args = [
+            "--net-file", str(self.net_file),
+            "--route-files", str(self._episode_route_file()),
+            "--seed", str(int(seed)),
+            "--begin", "0",
+            "--step-length", "1",
+            "--waiting-time-memory", str(max(self.num_seconds, 100)),
+            "--no-step-log", "true",
+            "--duration-log.disable", "true",
+        ]
+        if self.additional_files:
+            args += ["--additional-files", ",".join(str(f) for f in self.additional_files)]
+        if not self.sumo_warnings:
+            args += ["--no-warnings", "true"]
+        return args + list(self.sumo_args)
+
+    def reset(
+        self, seed: int | None = None, options: Mapping[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        """Start a new episode: (re)load SUMO (``load`` in the running process when possible).
+
+        :param seed: SUMO seed of this episode; also re-seeds the seeds of later episodes and the
+            action spaces. Default: the constructor's seed for the first episode, then seeds drawn
+            from it.
+        :param options: unused.
+        :return: observations and infos of all agents.
+        :raises RuntimeError: if another libsumo simulation is live in this process.
+        :raises SumoLoadError: if SUMO cannot load the scenario (message includes SUMO's complaint).
+        """
+        del options
+        if seed is None and self._seed is not None:
+            seed, self._seed = self._seed, None
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+            for i, a in enumerate(self.possible_agents):
+                self.action_spaces[a].seed(int(seed) + i)
+            sumo_seed = int(seed)
+        else:
+            sumo_seed = int(self._rng.integers(0, 2**31 - 1))
+        self.sumo_seed = sumo_seed
+        self._sim.start(self.sumo_command(sumo_seed))
+        api = self._sim.api
+        try:
+            if api is not self._api:
+                self._bind(api)
+            for mon in self._monitors:
+                mon.reset()
+            self._time = int(round(api.simulation.getTime()))
+            if self.signal_control == "agent":
+                for a, ctl in zip(self.possible_agents, self._controllers, strict=True):
+                    self._set_state(a, ctl.reset(self._time))
+            else:
+                self._lookups = [self._active_program(a).lookup() for a in self.possible_agents]
+            self._counts = [0, 0, 0, 0]
+            self._last = [mon.measure() for mon in self._monitors]
+        except self._sim.errors as exc:
+            self._died(exc)
+        self.agents = list(self.possible_agents)
+        obs = {a: self._observe(i) for i, a in enumerate(self.agents)}
+        infos = {a: self._info(i) for i, a in enumerate(self.agents)}
+        return obs, infos
+
+    def _bind(self, api: Any) -> None:
+        self._api = api
+        self._set_state = api.trafficlight.setRedYellowGreenState
+        self._simulation_step = api.simulationStep
+        sim = api.simulation
+        self._counters = (sim.getDepartedNumber, sim.getArrivedNumber, sim.getDepartedPersonNumber,
+                          sim.getArrivedPersonNumber)
+        self._monitors = [IntersectionMonitor(api, self.layouts[a]) for a in self.possible_agents]
+
+    def _active_program(self, tls: str) -> SignalProgram:
+        tl = self._api.trafficlight
+        current = tl.getProgram(tls)
+        for logic in tl.getAllProgramLogics(tls):
+            if logic.programID == current:
+                return SignalProgram.from_phases([p.state for p in logic.phases], tls)
+        return self._programs[tls]
+
+    # --------------------------------------------------------------------------------------- step
+    def step(
+        self, actions: Mapping[str, Any]
+    ) -> tuple[
+        dict[str, np.ndarray],
+        dict[str, np.ndarray],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        """Apply the agents' actions and simulate ``delta_time`` seconds.
+
+        :param actions: action (0 keep / 1 change) per agent; missing agents keep.
+        :return: observations, vector rewards, terminations, truncations, infos.
+        :raises RuntimeError: if the episode is over or was never started, or SUMO died during the step.
+        :raises ValueError: for an action outside {0, 1}.
+        """
+        if not self.agents:
+            raise RuntimeError("no episode is running: call reset() first")
+        agent_mode = self.signal_control == "agent"
+        time = self._time
+        if agent_mode:
+            acts = [actions.get(a, KEEP) for a in self.possible_agents]
+            for a, act in zip(self.possible_agents, acts, strict=True):
+                if act not in (0, 1):
+                    raise ValueError(f"action of {a} must be 0 (keep) or 1 (change), got {act!r}")
+        try:
+            if agent_mode:
+                for a, ctl, act in zip(self.possible_agents, self._controllers, acts, strict=True):
+                    state = ctl.act(int(act), time)
+                    if state is not None:
+                        self._set_state(a, state)
+            n = min(self.delta_time, self.num_seconds - time)
+            sim_step = self._simulation_step
+            monitors = self._monitors
+            controllers = self._controllers if agent_mode else ()
+            counters = self._counters
+            counts = self._counts
+            agents = self.possible_agents
+            for _ in range(n):
+                for a, ctl in zip(agents, controllers, strict=False):  # no controllers in program mode
+                    state = ctl.tick(time)
+                    if state is not None:
+                        self._set_state(a, state)
+                sim_step()
+                time += 1
+                self._time = time
+                for mon in monitors:
+                    mon.track()
+                for k in range(4):
+                    counts[k] += counters[k]()
+            measures = [mon.measure() for mon in monitors]
+            obs = {a: self._observe(i) for i, a in enumerate(agents)}
+        except self._sim.errors as exc:
+            self._died(exc)
+        rewards = {}
+        for i, a in enumerate(agents):
+            prev, cur = self._last[i], measures[i]
+            rewards[a] = np.array((prev[0] - cur[0], prev[2] - cur[2]), dtype=np.float32)
+        self._last = measures
+        done = time >= self.num_seconds
+        terminations = dict.fromkeys(agents, False)
+        truncations = dict.fromkeys(agents, done)
+        infos = {a: self._info(i) for i, a in enumerate(agents)}
+        if done:
+            metrics = self.episode_metrics()
+            for a in agents:
+                infos[a]["episode"] = dict(metrics)
+            self.agents = []
+        return obs, rewards, terminations, truncations, infos
+
+    def _died(self, exc: BaseException) -> NoReturn:
+        time = self._time
+        self.agents = []
+        self._sim.close()
+        self._api = None
+        raise RuntimeError(
+            f"the SUMO simulation stopped unexpectedly at t={time} s ({type(exc).__name__}: {exc}). "
+            "Call reset() to start a new episode."
+        ) from exc
+
+    # -------------------------------------------------------------------------- observation / info
+    def _observe(self, i: int) -> np.ndarray:
+        if self.signal_control == "agent":
+            ctl = self._controllers[i]
+            green = ctl.green
+            tau = min(1.0, ctl.elapsed_green(self._time) / self.max_green)
+        else:
+            tls = self.possible_agents[i]
+            tl = self._api.trafficlight
+            green, yellow = self._lookups[i].get(tl.getRedYellowGreenState(tls), (0, False))
+            tau = 0.0 if yellow else min(1.0, tl.getSpentDuration(tls) / self.max_green)
+        dens, queue = self._monitors[i].lane_features()
+        vec = [0.0, 0.0, tau]
+        vec[green] = 1.0
+        return np.array(vec + dens + queue, dtype=np.float32)
+
+    def _info(self, i: int) -> dict[str, Any]:
+        w_v, n_v, w_p, n_p = self._last[i]
+        if self.signal_control == "agent":
+            green, yellow = self._controllers[i].green, self._controllers[i].in_yellow
+        else:
+            state = self._api.trafficlight.getRedYellowGreenState(self.possible_agents[i])
+            green, yellow = self._lookups[i].get(state, (0, False))
+        return {
+            "vehicle_wait_total": w_v,
+            "vehicle_wait_mean": w_v / n_v if n_v else 0.0,
+            "pedestrian_wait_total": w_p,
+            "pedestrian_wait_mean": w_p / n_p if n_p else 0.0,
+            "vehicles_incoming": n_v,
+            "pedestrians_incoming": n_p,
+            "green_phase": green,
+            "yellow": yellow,
+            "time": self._time,
+        }
+
+    def episode_metrics(self) -> dict[str, float]:
+        """System metrics of the current (or just finished) episode.
+
+        * ``vehicle_waiting_time_total``: waiting time [s] of all vehicles on the incoming lanes of the
+          intersections (where all waiting happens in this network), summed over vehicles;
+        * ``vehicle_waiting_time_mean``: that total divided by ``vehicles_departed``;
+        * ``pedestrian_waiting_time_total`` / ``_mean``: the same for pedestrians (time standing on the
+          approaches of the crossings), divided by ``pedestrians_departed``;
+        * ``vehicles_departed``, ``vehicles_arrived``, ``pedestrians_departed``, ``pedestrians_arrived``;
+        * ``sim_time``: simulated seconds so far.
+
+        :return: the metrics (keys :data:`EPISODE_METRIC_KEYS`).
+        """
+        veh = sum(m.vehicle_done + last[0] for m, last in zip(self._monitors, self._last, strict=True))
+        ped = sum(m.pedestrian_done + last[2] for m, last in zip(self._monitors, self._last, strict=True))
+        dep_v, arr_v, dep_p, arr_p = self._counts
+        return {
+            "vehicle_waiting_time_total": float(veh),
+            "vehicle_waiting_time_mean": float(veh / dep_v) if dep_v else 0.0,
+            "pedestrian_waiting_time_total": float(ped),
+            "pedestrian_waiting_time_mean": float(ped / dep_p) if dep_p else 0.0,
+            "vehicles_departed": float(dep_v),
+            "vehicles_arrived": float(arr_v),
+            "pedestrians_departed": float(dep_p),
+            "pedestrians_arrived": float(arr_p),
+            "sim_time": float(self._time),
+        }
+
+    # ------------------------------------------------------------------------------------- misc
+    def render(self) -> None:
+        """Nothing to draw: with ``gui=True`` (``render_mode="human"``) sumo-gui shows the simulation."""
+        return None
+
+    def close(self) -> None:
+        """Stop SUMO (frees the process-wide libsumo slot) and delete temporary files."""
+        self.agents = []
+        self._sim.close()
+        self._api = None
+        self._route_for_episode = None
+        if self._finalizer is not None:
+            self._finalizer()
+            self._finalizer = None
+            self._tmpdir = None
+
+    def __del__(self) -> None:
+        try:
+            self._sim.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass

@@ -1,0 +1,171 @@
+"""Green/yellow phase logic of one traffic light under agent control (keep / change actions).
+
+:class:`SignalProgram` extracts the two green phases and their yellow transitions from a static
+program; :class:`SignalController` is a small state machine that enforces the minimum and maximum
+green times and the yellow time. It never touches SUMO: it returns the state string to show, and
+the environment sends it with ``trafficlight.setRedYellowGreenState``. That call puts the light on
+SUMO's single-phase "online" program, which never advances by itself.
+
+Time is in whole simulated seconds (the environment steps SUMO one second at a time).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+KEEP = 0
+"""Action: keep the current green phase."""
+
+CHANGE = 1
+"""Action: switch to the other green phase (through a yellow phase)."""
+
+
+def _is_green(state: str) -> bool:
+    return any(c in "Gg" for c in state) and not any(c in "yYuo" for c in state)
+
+
+def _is_yellow(state: str) -> bool:
+    return any(c in "yY" for c in state)
+
+
+def _derive_yellow(green: str, following: str) -> str:
+    """Yellow state between two greens: links green now and red next turn yellow."""
+    return "".join("y" if a in "Gg" and b in "rs" else a for a, b in zip(green, following, strict=True))
+
+
+@dataclass(frozen=True)
+class SignalProgram:
+    """The green phases of a traffic light and the yellow state shown after each.
+
+    :param greens: state strings of the green phases, in program order.
+    :param yellows: ``yellows[i]`` is the state shown between ``greens[i]`` and the next green.
+    """
+
+    greens: tuple[str, ...]
+    yellows: tuple[str, ...]
+
+    @classmethod
+    def from_phases(cls, states: Sequence[str], tls_id: str = "?", n_greens: int = 2) -> SignalProgram:
+        """Build from the phase states of a program.
+
+        A green phase has green links and no yellow ones. The yellow after green ``i`` is the first
+        yellow phase between it and the next green; if there is none it is derived (links that are
+        green now and red in the next green turn yellow).
+
+        :param states: phase state strings, in cycle order.
+        :param tls_id: traffic-light id, for error messages.
+        :param n_greens: required number of green phases.
+        :return: the program.
+        :raises ValueError: if the program does not have exactly ``n_greens`` green phases.
+        """
+        states = list(states)
+        green_idx = [i for i, s in enumerate(states) if _is_green(s)]
+        if len(green_idx) != n_greens:
+            raise ValueError(
+                f"traffic light {tls_id!r} must have exactly {n_greens} green phases, "
+                f"found {len(green_idx)} in {states}"
+            )
+        greens, yellows = [], []
+        for k, i in enumerate(green_idx):
+            j = green_idx[(k + 1) % len(green_idx)]
+            between = [states[m % len(states)] for m in range(i + 1, j if j > i else j + len(states))]
+            yellow = next((s for s in between if _is_yellow(s)), None)
+            greens.append(states[i])
+            yellows.append(yellow if yellow is not None else _derive_yellow(states[i], states[j]))
+        return cls(tuple(greens), tuple(yellows))
+
+    def lookup(self) -> dict[str, tuple[int, bool]]:
+        """Map each state string to ``(green index it shows or leads to, is_yellow)``.
+
+        :return: the mapping (yellow ``i`` leads to green ``i + 1``).
+        """
+        table = {y: ((i + 1) % len(self.greens), True) for i, y in enumerate(self.yellows)}
+        table.update({g: (i, False) for i, g in enumerate(self.greens)})
+        return table
+
+
+class SignalController:
+    """Keep/change controller with minimum/maximum green and a fixed yellow time.
+
+    * ``change`` before ``min_green`` seconds of green is ignored (the green is kept);
+    * a green that reaches ``max_green`` seconds is ended by :meth:`tick` whatever the agent wants;
+    * between two greens the yellow state is shown for exactly ``yellow_time`` seconds;
+    * during yellow, actions are ignored.
+
+    :param program: green and yellow states.
+    :param min_green: minimum green time [s].
+    :param max_green: maximum green time [s].
+    :param yellow_time: yellow time [s] (at least 1).
+    """
+
+    __slots__ = ("program", "min_green", "max_green", "yellow_time", "green", "in_yellow", "green_start", "yellow_end")
+
+    def __init__(self, program: SignalProgram, min_green: int, max_green: int, yellow_time: int) -> None:
+        self.program = program
+        self.min_green = min_green
+        self.max_green = max_green
+        self.yellow_time = yellow_time
+        self.green = 0
+        """Index of the green phase shown, or (during yellow) the one coming next."""
+        self.in_yellow = False
+        self.green_start = 0
+        """Time the current green started (during yellow: when it will start)."""
+        self.yellow_end = 0
+
+    def reset(self, time: int, green: int = 0) -> str:
+        """Start green phase ``green`` at ``time``.
+
+        :param time: current simulation time [s].
+        :param green: green phase index.
+        :return: the state string to show.
+        """
+        self.green = green
+        self.in_yellow = False
+        self.green_start = time
+        return self.program.greens[green]
+
+    def elapsed_green(self, time: int) -> int:
+        """Seconds the current green has been shown (0 during yellow).
+
+        :param time: current simulation time [s].
+        :return: elapsed green time.
+        """
+        return 0 if self.in_yellow else time - self.green_start
+
+    def act(self, action: int, time: int) -> str | None:
+        """Apply an agent's decision at ``time``.
+
+        :param action: :data:`KEEP` or :data:`CHANGE`.
+        :param time: current simulation time [s].
+        :return: the new state string if the light changes now, else ``None``.
+        """
+        if action == CHANGE and not self.in_yellow and time - self.green_start >= self.min_green:
+            return self._start_yellow(time)
+        return None
+
+    def tick(self, time: int) -> str | None:
+        """Advance the phase logic to ``time`` (called before each simulated second).
+
+        Ends a finished yellow and forces the change of a green that reached ``max_green``.
+
+        :param time: current simulation time [s].
+        :return: the new state string if the light changes now, else ``None``.
+        """
+        if self.in_yellow:
+            if time >= self.yellow_end:
+                self.in_yellow = False
+                self.green_start = time
+                return self.program.greens[self.green]
+            return None
+        if time - self.green_start >= self.max_green:
+            return self._start_yellow(time)
+        return None
+
+    def _start_yellow(self, time: int) -> str:
+        state = self.program.yellows[self.green]
+        self.green = (self.green + 1) % len(self.program.greens)
+        self.in_yellow = True
+        self.yellow_end = time + self.yellow_time
+        self.green_start = self.yellow_end
+        return state

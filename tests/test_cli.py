@@ -1,0 +1,81 @@
+"""The ``sb3-sfgpi`` command line: train, resume, evaluate, plot, and one-line errors for bad arguments."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from sb3_sfgpi.cli import main
+
+TRAIN = ["train", "four-room", "--iterations", "2", "--steps-per-iteration", "150", "--no-progress", "--seed", "1"]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "fr"
+    assert main([*TRAIN, "--out", str(out)]) == 0
+    return out
+
+
+def test_train_writes_a_run_directory(run_dir):
+    config = json.loads((run_dir / "run.json").read_text())
+    assert config["domain"] == "four-room" and config["algorithm"] == "ma-sfols"
+    checkpoint = json.loads((run_dir / "checkpoint.json").read_text())
+    assert checkpoint["iteration"] == 2 and checkpoint["timesteps"] == 300
+    rows = (run_dir / "evaluation.csv").read_text().splitlines()
+    assert rows[0].startswith("iteration,timesteps,n_policies,ccs_size,mean_return") and len(rows) == 3
+    assert (run_dir / "policy_set" / "manifest.json").exists()
+    assert any((run_dir / "tensorboard").iterdir()) and (run_dir / "logs" / "progress.csv").exists()
+
+
+def test_resume_continues_to_more_iterations(run_dir, tmp_path):
+    assert main([*TRAIN, "--out", str(run_dir)]) == 2  # exists: refused without --resume
+    out = tmp_path / "random"
+    args = [*TRAIN, "--algo", "random", "--out", str(out)]  # random weights never end before the cap
+    assert main(args) == 0
+    args[args.index("--iterations") + 1] = "3"
+    assert main([*args, "--resume"]) == 0
+    assert json.loads((out / "checkpoint.json").read_text())["iteration"] == 3
+    assert len((out / "evaluation.csv").read_text().splitlines()) == 4
+
+
+def test_evaluate_prints_per_agent_returns(run_dir, capsys):
+    assert main(["evaluate", str(run_dir), "--w", "0.2", "0.3", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "agent_0: return [" in out and "agent_1: return [" in out
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["evaluate", "RUN", "--w", "0.5", "0.5"], "length 3"),
+        (["evaluate", "RUN", "--w", "1", "-1", "0"], "non-negative"),
+        (["evaluate", "RUN", "--w", "0", "0", "0"], "all zero"),
+        (["evaluate", "NOT_A_RUN", "--w", "1", "0", "0"], "not a run directory"),
+        (["train", "no-such-domain"], "unknown domain"),
+        (["plot", "NOT_A_RUN", "-o", "x.png"], "not a run directory"),
+    ],
+)
+def test_bad_arguments_give_one_line_and_exit_code_2(run_dir, tmp_path, argv, message):
+    argv = [str(run_dir) if a == "RUN" else str(tmp_path / a) if a == "NOT_A_RUN" else a for a in argv]
+    result = subprocess.run([sys.executable, "-m", "sb3_sfgpi.cli", *argv], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert message in result.stderr and "Traceback" not in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_plot_draws_a_png(run_dir, tmp_path):
+    output = tmp_path / "fig.png"
+    assert main(["plot", str(run_dir), "-o", str(output)]) == 0
+    assert output.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plot_mean_over_seeds_forward_fills_runs_that_ended_early():
+    from sb3_sfgpi.cli import align_runs
+
+    values = align_runs([{1: 1.0, 2: 2.0}, {1: 3.0}])
+    np.testing.assert_allclose(values, [[1.0, 2.0], [3.0, 3.0]])
