@@ -84,20 +84,55 @@ class MOReplayBuffer(ReplayBuffer):
             )
         super().add(obs, next_obs, action, reward, done, infos)
 
-    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
-        if env is not None and env.norm_reward:
-            raise ValueError("Reward normalisation (VecNormalize(norm_reward=True)) is not supported for vector rewards")
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        """
+        Sample a batch of transitions as tensors; rewards have shape ``(batch_size, reward_dim)``.
+
+        :param batch_size: Number of transitions
+        :param env: A VecNormalize to normalise observations with (reward normalisation is refused)
+        """
+        return self._get_samples(self._sample_indices(batch_size), env=env)
+
+    def sample_arrays(self, batch_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """
+        Sample a batch as numpy arrays, without tensors (for numpy learners such as the tabular policy).
+
+        :param batch_size: Number of transitions
+        :return: observations, actions ``(B,)``, next observations, dones ``(B,)`` (truncations count as
+            not done), rewards ``(B, d)``
+        """
+        obs, actions, next_obs, dones, rewards = self._arrays(self._sample_indices(batch_size))
+        return obs, actions.reshape(-1), next_obs, dones.reshape(-1), rewards
+
+    def _sample_indices(self, batch_size: int) -> np.ndarray:
+        if not self.optimize_memory_usage:
+            upper_bound = self.buffer_size if self.full else self.pos
+            return np.random.randint(0, upper_bound, size=batch_size)
+        # With one array for obs and next obs, the transition at ``pos`` is not valid.
+        if self.full:
+            return (np.random.randint(1, self.buffer_size, size=batch_size) + self.pos) % self.buffer_size
+        return np.random.randint(0, self.pos, size=batch_size)
+
+    def _arrays(self, batch_inds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
         if self.optimize_memory_usage:
             next_obs = self.observations[(batch_inds + 1) % self.buffer_size, env_indices, :]
         else:
             next_obs = self.next_observations[batch_inds, env_indices, :]
-        data = (
-            self._normalize_obs(self.observations[batch_inds, env_indices, :], env),
+        return (
+            self.observations[batch_inds, env_indices, :],
             self.actions[batch_inds, env_indices, :],
-            self._normalize_obs(next_obs, env),
+            next_obs,
             # A time-limit truncation is not a termination: it bootstraps.
             (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
             self.rewards[batch_inds, env_indices, :],
         )
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        if env is not None and env.norm_reward:
+            raise ValueError(
+                "Reward normalisation (VecNormalize(norm_reward=True)) is not supported for vector rewards"
+            )
+        obs, actions, next_obs, dones, rewards = self._arrays(batch_inds)
+        data = (self._normalize_obs(obs, env), actions, self._normalize_obs(next_obs, env), dones, rewards)
         return ReplayBufferSamples(*tuple(map(self.to_torch, data)))

@@ -14,8 +14,11 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor, create_mlp
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 from torch.nn import functional as F
+
+from sb3_sfgpi.common.buffers import MOReplayBuffer
 
 #: Largest table :class:`TabularSFNetwork` builds (number of observation values).
 MAX_TABLE_STATES = 50_000_000
@@ -127,7 +130,7 @@ class TabularSFNetwork(BasePolicy):
     """
     Lookup table of successor features, one row per observation value, initialised to zero.
 
-    The row of an observation is its mixed-radix index; ``TabularPolicy.optimize`` updates the sampled rows
+    The row of an observation is its mixed-radix index; ``TabularPolicy.td_update`` updates the sampled rows
     in place.
 
     :param observation_space: a small integer observation space (see :func:`observation_radices`)
@@ -147,12 +150,18 @@ class TabularSFNetwork(BasePolicy):
                 "use MlpPolicy"
             )
         strides = np.concatenate([np.cumprod(n_values[::-1])[::-1][1:], [1]]).astype(np.int64)
+        self._low, self._strides = low.astype(np.int64), strides
         self.register_buffer("low", th.as_tensor(low, dtype=th.long), persistent=False)
         self.register_buffer("strides", th.as_tensor(strides, dtype=th.long), persistent=False)
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
         self.table = nn.Embedding(n_states, self.n_actions * reward_dim)
         nn.init.zeros_(self.table.weight)
+
+    def rows(self, obs: np.ndarray) -> np.ndarray:
+        """Numpy twin of :meth:`state_index`: row indices of raw observations, shape ``(batch,)``."""
+        components = np.asarray(obs, dtype=np.int64).reshape(len(obs), -1) - self._low
+        return components @ self._strides
 
     def state_index(self, obs: th.Tensor) -> th.Tensor:
         """
@@ -174,7 +183,9 @@ class TabularSFNetwork(BasePolicy):
         raise NotImplementedError("an SF network has no weights: use SFDQNPolicy or GPIPolicy to act")
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return dict(observation_space=self.observation_space, action_space=self.action_space, reward_dim=self.reward_dim)
+        return dict(
+            observation_space=self.observation_space, action_space=self.action_space, reward_dim=self.reward_dim
+        )
 
 
 class SFDQNPolicy(BasePolicy):
@@ -257,17 +268,48 @@ class SFDQNPolicy(BasePolicy):
     def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         return greedy_actions(self.sf_net(obs), self.weights)
 
-    def optimize(self, observations: th.Tensor, actions: th.Tensor, target_psi: th.Tensor, max_grad_norm: float) -> float:
+    def greedy(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """
-        One gradient step of the Huber loss between ``ψ(s, a)`` and its TD target (mean over batch and objectives).
+        ``argmax_a w · ψ(s, a)`` for one observation or a batch.
 
-        :param observations: batch of observations
-        :param actions: the actions taken, shape ``(batch,)``
-        :param target_psi: the TD targets, shape ``(batch, d)``
+        :param observation: raw observation(s), as given to ``predict``
+        :param weights: shape ``(d,)``
+        :return: the actions (shape ``(batch,)``) and whether the observation was a batch
+        """
+        self.set_training_mode(False)
+        obs_tensor, vectorized = self.obs_to_tensor(observation)
+        with th.no_grad():
+            weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.device)
+            return greedy_actions(self.sf_net(obs_tensor), weights_tensor).cpu().numpy(), vectorized
+
+    def td_update(
+        self,
+        replay_buffer: MOReplayBuffer,
+        batch_size: int,
+        gamma: float,
+        max_grad_norm: float,
+        vec_normalize_env: VecNormalize | None = None,
+    ) -> float:
+        """
+        One gradient step on a sampled batch, towards ``r + γ (1 − terminated) ψ_target(s', a*)`` with
+        ``a* = argmax_a w · ψ(s', a)`` (online network picks, target network evaluates), Huber loss averaged
+        over batch and objectives, gradient norm clipped.
+
+        :param replay_buffer: where to sample from
+        :param batch_size: number of transitions
+        :param gamma: discount factor
         :param max_grad_norm: gradient-norm clipping threshold
+        :param vec_normalize_env: normalises the sampled observations, if given
         :return: the loss before the step
         """
-        current_psi = self.sf_net(observations)[th.arange(len(actions)), actions]
+        batch = replay_buffer.sample(batch_size, env=vec_normalize_env)
+        rows = th.arange(batch_size)
+        with th.no_grad():
+            next_online = self.sf_net(batch.next_observations)
+            next_actions = greedy_actions(next_online, self.weights)
+            next_psi = next_online if self.sf_net_target is self.sf_net else self.sf_net_target(batch.next_observations)
+            target_psi = batch.rewards + (1 - batch.dones) * gamma * next_psi[rows, next_actions]
+        current_psi = self.sf_net(batch.observations)[rows, batch.actions.long().flatten()]
         loss = F.smooth_l1_loss(current_psi, target_psi)
         self.optimizer.zero_grad()
         loss.backward()
@@ -302,8 +344,9 @@ class TabularPolicy(SFDQNPolicy):
     Tabular successor features: multi-objective Q-learning with experience replay.
 
     Each sampled transition moves its entry by ``α · (target − ψ)`` with ``α`` the learning rate: the SGD step
-    on ``0.5 · Σ_batch ||target − ψ(s, a)||²``, exactly the tabular update of the paper (Table 1: α = 0.1). By default there is no separate target network (``target_network=False``):
-    targets read the table itself, as in Q-learning.
+    on ``0.5 · Σ_batch ||target − ψ(s, a)||²``, exactly the tabular update of the paper (Table 1: α = 0.1).
+    By default there is no separate target network (``target_network=False``): targets read the table itself,
+    as in Q-learning.
 
     :param observation_space: a small integer observation space
     :param action_space: Action space (Discrete)
@@ -311,7 +354,7 @@ class TabularPolicy(SFDQNPolicy):
     :param reward_dim: Number of objectives ``d``
     :param target_network: Keep a separate, periodically copied target table
     :param optimizer_class: The optimizer, SGD by default (it holds the learning rate ``α``; the update itself
-        is done in place by :meth:`optimize`)
+        is done in place by :meth:`td_update`)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate
     """
 
@@ -351,27 +394,54 @@ class TabularPolicy(SFDQNPolicy):
         """A new zero-initialised SF table."""
         return TabularSFNetwork(self.observation_space, self.action_space, self.reward_dim).to(self.device)  # type: ignore[arg-type]
 
-    def optimize(self, observations: th.Tensor, actions: th.Tensor, target_psi: th.Tensor, max_grad_norm: float) -> float:
+    def _table(self, net: TabularSFNetwork) -> np.ndarray:
+        # A numpy view sharing memory with the table: updates through it are updates of the module.
+        return net.table.weight.detach().numpy().reshape(-1, net.n_actions, self.reward_dim)
+
+    def greedy(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+        """``argmax_a w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.greedy`)."""
+        if self.device.type != "cpu":
+            return super().greedy(observation, weights)
+        vectorized = self.is_vectorized_observation(observation)
+        obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
+        psi = self._table(self.sf_net)[self.sf_net.rows(obs)]
+        return (psi @ np.asarray(weights, dtype=np.float32)).argmax(axis=1), vectorized
+
+    def td_update(
+        self,
+        replay_buffer: MOReplayBuffer,
+        batch_size: int,
+        gamma: float,
+        max_grad_norm: float,
+        vec_normalize_env: VecNormalize | None = None,
+    ) -> float:
         """
-        ``ψ(s, a) ← ψ(s, a) + α (target − ψ(s, a))`` for every sampled transition (repeats add up).
+        ``ψ(s, a) ← ψ(s, a) + α (target − ψ(s, a))`` for every sampled transition (repeats add up), with the
+        target of :meth:`SFDQNPolicy.td_update`.
 
-        This is the SGD step on ``0.5 · Σ ||target − ψ(s, a)||²`` with learning rate ``α``, done in place with
-        ``index_add_`` (autograd through a sparse table costs a hundred times more). ``α`` is the optimizer's
-        current learning rate, so SB3's learning-rate schedules apply.
+        This is the SGD step on ``0.5 · Σ ||target − ψ(s, a)||²`` with learning rate ``α``, done in place in
+        numpy on the table's memory (autograd through a table costs a hundred times more). ``α`` is the
+        optimizer's current learning rate, so SB3's learning-rate schedules apply. ``max_grad_norm`` is unused:
+        the tabular update is exact.
 
-        :param observations: batch of observations
-        :param actions: the actions taken, shape ``(batch,)``
-        :param target_psi: the TD targets, shape ``(batch, d)``
-        :param max_grad_norm: unused: the tabular update is exact, without clipping
         :return: the loss before the step
         """
-        learning_rate = self.optimizer.param_groups[0]["lr"]
-        with th.no_grad():
-            entries = self.sf_net.table.weight.view(-1, self.reward_dim)
-            flat = self.sf_net.state_index(observations) * self.sf_net.n_actions + actions
-            td_error = target_psi - entries[flat]
-            entries.index_add_(0, flat, td_error, alpha=learning_rate)
-        return 0.5 * td_error.pow(2).sum().item()
+        if self.device.type != "cpu":
+            raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
+        if vec_normalize_env is not None:
+            raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
+        obs, actions, next_obs, dones, rewards = replay_buffer.sample_arrays(batch_size)
+        table = self._table(self.sf_net)
+        next_rows = self.sf_net.rows(next_obs)
+        next_online = table[next_rows]
+        next_actions = (next_online @ self.weights.numpy()).argmax(axis=1)
+        next_psi = next_online if self.sf_net_target is self.sf_net else self._table(self.sf_net_target)[next_rows]
+        target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_psi[np.arange(batch_size), next_actions]
+        entries = table.reshape(-1, self.reward_dim)
+        flat = self.sf_net.rows(obs) * self.sf_net.n_actions + actions.astype(np.int64)
+        td_error = target_psi - entries[flat]
+        np.add.at(entries, flat, self.optimizer.param_groups[0]["lr"] * td_error)
+        return float(0.5 * np.square(td_error).sum())
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return dict(

@@ -17,7 +17,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.vec_env import vec_env_reward_dim, wrap_mo_env
 from sb3_sfgpi.common.weights import validate_weights
-from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy, greedy_actions
+from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
 
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 
@@ -200,18 +200,12 @@ class SFDQN(OffPolicyAlgorithm):
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        sf_net, sf_net_target = self.policy.sf_net, self.policy.sf_net_target
-        losses = []
-        for _ in range(gradient_steps):
-            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
-            with th.no_grad():
-                next_online = sf_net(replay_data.next_observations)
-                next_actions = greedy_actions(next_online, self.policy.weights)
-                next_psi = next_online if sf_net_target is sf_net else sf_net_target(replay_data.next_observations)
-                next_psi = next_psi[th.arange(batch_size), next_actions]
-                target_psi = replay_data.rewards + (1 - replay_data.dones) * self.gamma * next_psi
-            actions = replay_data.actions.long().flatten()
-            losses.append(self.policy.optimize(replay_data.observations, actions, target_psi, self.max_grad_norm))
+        losses = [
+            self.policy.td_update(
+                self.replay_buffer, batch_size, self.gamma, self.max_grad_norm, self._vec_normalize_env
+            )
+            for _ in range(gradient_steps)
+        ]
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/loss", np.mean(losses))
@@ -235,16 +229,13 @@ class SFDQN(OffPolicyAlgorithm):
         :return: the actions and ``state``
         """
         # Validate w first: an exploratory action must not hide bad weights.
-        weights = self.policy.weights if w is None else th.as_tensor(validate_weights(w, self.reward_dim)).float()
+        weights = self._weights if w is None else validate_weights(w, self.reward_dim)
         if not deterministic and np.random.rand() < self.exploration_rate:
             vectorized = self.policy.is_vectorized_observation(observation)
             n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
             actions = np.array([self.action_space.sample() for _ in range(n_batch)])
             return (actions if vectorized else actions[0]), state
-        self.policy.set_training_mode(False)
-        obs_tensor, vectorized = self.policy.obs_to_tensor(observation)
-        with th.no_grad():
-            actions = greedy_actions(self.policy.sf_net(obs_tensor), weights.to(self.device)).cpu().numpy()
+        actions, vectorized = self.policy.greedy(observation, weights)
         return (actions if vectorized else actions[0]), state
 
     def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
