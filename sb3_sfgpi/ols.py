@@ -118,10 +118,10 @@ class OLS:
         """
         Record the value vector of a policy solved for ``weight`` (Algorithm 1, lines 12 and 20-28).
 
-        ``weight`` becomes visited (and leaves the queue if it is there). If ``value`` is new, it is appended to :attr:`values`; queued weights where it
-        raises ``V^CB`` by more than the tolerance are dropped (simplex extrema stay: they are always corners);
-        then the corner weights where it is on the upper surface are queued with their priority, unless visited,
-        already queued or of priority <= tolerance.
+        ``weight`` becomes visited (and leaves the queue if it is there). If ``value`` is new, it is appended to
+        :attr:`values`; queued weights where it raises ``V^CB`` by more than the tolerance are dropped (simplex
+        extrema stay: they are always corners); then the corner weights where it is on the upper surface are queued
+        with their priority, unless visited, already queued or of priority <= tolerance.
 
         :param value: the policy's value vector, length ``d``
         :param weight: the weight the policy was trained for
