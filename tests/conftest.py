@@ -1,0 +1,109 @@
+"""Shared fixtures: the paper's Fig. 1 MOMDP (``tests/momdp.py``), small SFDQN models and SF networks."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from momdp import Fig1MOMDP
+from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.torch_layers import FlattenExtractor
+
+from sb3_sfgpi.sfdqn import SFDQN, SFNetwork, TabularSFNetwork
+
+# The networks here are tiny: one thread per test process is faster, above all when pytest-xdist runs two.
+th.set_num_threads(1)
+
+#: Settings under which tabular SFDQN solves the Fig. 1 MOMDP (γ = 1) in about a second.
+FIG1_TABULAR_KWARGS: dict[str, Any] = dict(
+    learning_rate=0.5,
+    gamma=1.0,
+    batch_size=1,
+    train_freq=1,
+    learning_starts=0,
+    buffer_size=1_000,
+    exploration_fraction=0.5,
+    exploration_initial_eps=1.0,
+    exploration_final_eps=0.1,
+)
+FIG1_TABULAR_STEPS = 1_200
+
+BAD_WEIGHTS = [
+    pytest.param([1.0], "length", id="wrong-length"),
+    pytest.param([0.5, 0.3, 0.2], "length", id="too-long"),
+    pytest.param([-0.5, 1.5], "non-negative", id="negative"),
+    pytest.param([float("nan"), 1.0], "finite", id="nan"),
+    pytest.param([0.0, 0.0], "all zero", id="all-zero"),
+]
+
+
+@pytest.fixture
+def make_fig1_env() -> Callable[..., Fig1MOMDP]:
+    """Factory of the Fig. 1 MOMDP: ``make_fig1_env(one_hot=False)``."""
+    return Fig1MOMDP
+
+
+@pytest.fixture
+def make_tabular_sfdqn() -> Callable[..., SFDQN]:
+    """Factory of a tabular SFDQN on the Fig. 1 MOMDP with settings that solve it; keyword arguments override."""
+
+    def make(weights: Sequence[float] = (0.5, 0.5), **overrides: Any) -> SFDQN:
+        kwargs = {**FIG1_TABULAR_KWARGS, "seed": 0, **overrides}
+        return SFDQN("TabularPolicy", Fig1MOMDP(), weights=list(weights), **kwargs)
+
+    return make
+
+
+@pytest.fixture
+def silent_logger() -> Logger:
+    """An SB3 logger with no output (``train()`` records to the logger)."""
+    return Logger(folder=None, output_formats=[])
+
+
+def random_mlp_network(
+    seed: int, obs_dim: int = 4, n_actions: int = 3, reward_dim: int = 3, net_arch: Sequence[int] = (16, 16)
+) -> SFNetwork:
+    """A randomly initialised MLP SF network on ``Box(-1, 1, (obs_dim,))`` (seeded)."""
+    th.manual_seed(seed)
+    observation_space = spaces.Box(-1.0, 1.0, shape=(obs_dim,), dtype=np.float32)
+    extractor = FlattenExtractor(observation_space)
+    return SFNetwork(
+        observation_space,
+        spaces.Discrete(n_actions),
+        extractor,
+        extractor.features_dim,
+        reward_dim,
+        net_arch=list(net_arch),
+    )
+
+
+def random_tabular_network(
+    seed: int, nvec: Sequence[int] = (3, 4, 2), n_actions: int = 3, reward_dim: int = 3
+) -> TabularSFNetwork:
+    """A tabular SF network on ``MultiDiscrete(nvec)`` with a random (seeded) table."""
+    net = TabularSFNetwork(spaces.MultiDiscrete(list(nvec)), spaces.Discrete(n_actions), reward_dim)
+    generator = th.Generator().manual_seed(seed)
+    with th.no_grad():
+        net.table.weight.copy_(th.randn(net.table.weight.shape, generator=generator))
+    return net
+
+
+@pytest.fixture
+def make_random_mlp() -> Callable[..., SFNetwork]:
+    """Factory of seeded random MLP SF networks (see :func:`random_mlp_network`)."""
+    return random_mlp_network
+
+
+@pytest.fixture
+def make_random_tabular() -> Callable[..., TabularSFNetwork]:
+    """Factory of seeded random tabular SF networks (see :func:`random_tabular_network`)."""
+    return random_tabular_network
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(0)
