@@ -56,18 +56,31 @@ def main() -> None:
         runs = list(pool.map(lambda job: train(args.out, *job, extra), jobs))
 
     subprocess.run(
-        [sys.executable, "-m", "sb3_sfgpi.cli", "plot", *map(str, runs), "-o", str(args.figure),
-         "--title", "Four-Room: GPI return over 12 test weights (both agents)"],
+        [
+            sys.executable,
+            "-m",
+            "sb3_sfgpi.cli",
+            "plot",
+            *map(str, runs),
+            "-o",
+            str(args.figure),
+            "--title",
+            "Four-Room: GPI return over 12 test weights (both agents)",
+        ],
         check=True,
     )
-    print("\n| algorithm | " + " | ".join(f"it {i}" for i in range(1, 1 + max_iterations(runs))) + " | 95% at | wall time (s) |")
+    print(
+        "\n| algorithm | "
+        + " | ".join(f"it {i}" for i in range(1, 1 + max_iterations(runs)))
+        + " | 95% at | wall time (s) |"
+    )
     for algo in ("ma-sfols", "random"):
-        algo_runs = [run for run, (a, _) in zip(runs, jobs) if a == algo]
+        algo_runs = [run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo]
         rows = [read_rows(run) for run in algo_runs]
         curves = align_runs([{int(r["iteration"]) + 1: float(r["mean_return"]) for r in rs} for rs in rows])
         mean, std = curves.mean(axis=0), curves.std(axis=0)
         wall = np.mean([float(rs[-1]["wall_time"]) for rs in rows])
-        cells = " | ".join(f"{m:.3f} ± {s:.3f}" for m, s in zip(mean, std))
+        cells = " | ".join(f"{m:.3f} ± {s:.3f}" for m, s in zip(mean, std, strict=True))
         print(f"| {algo} | {cells} | {first_within(mean)} | {wall:.0f} |")
 
 

@@ -1,39 +1,17 @@
 """A multi-agent version of the paper's Fig. 1 MOMDP, for exact tests of the multi-agent loop.
 
 Every agent walks its own copy of the chain s0 → s1 → s2 → s3 → s4 (terminal); the action only chooses the
-vector reward. Agent ``i`` may have a longer chain (it finishes later), to exercise early-finishing agents.
+vector reward. ``max_steps`` truncates episodes before the terminal state, to exercise time limits.
 """
 
 from __future__ import annotations
 
-import functools
-import itertools
-
 import numpy as np
 from gymnasium import spaces
+from momdp import N_STATES, REWARDS, optimal_value
 from pettingzoo import ParallelEnv
 
-# REWARDS[state][action] = (objective 0, objective 1); actions A, B, C.
-REWARDS = np.array(
-    [
-        [(1, 9), (8, 9), (1, 5)],
-        [(8, 7), (7, 7), (5, 2)],
-        [(3, 6), (9, 0), (6, 1)],
-        [(1, 0), (4, 8), (0, 5)],
-    ],
-    dtype=np.float32,
-)
-N_STATES = 5
-
-
-def policy_values() -> np.ndarray:
-    """Undiscounted value vectors of all 3^4 deterministic policies, shape (81, 2)."""
-    return np.array([sum(REWARDS[s, a] for s, a in enumerate(actions)) for actions in itertools.product(range(3), repeat=4)])
-
-
-def optimal_value(w: np.ndarray) -> float:
-    """max_π w · V^π by brute force."""
-    return float(np.max(policy_values() @ np.asarray(w)))
+__all__ = ["ParallelChainEnv", "optimal_value"]
 
 
 class ParallelChainEnv(ParallelEnv):
@@ -45,14 +23,14 @@ class ParallelChainEnv(ParallelEnv):
         self.possible_agents = [f"agent_{i}" for i in range(n_agents)]
         self.max_steps = max_steps
         self._reward_space = spaces.Box(0.0, 9.0, shape=(2,), dtype=np.float32)
+        self._observation_space = spaces.Discrete(N_STATES)
+        self._action_space = spaces.Discrete(3)
 
-    @functools.lru_cache(maxsize=None)
     def observation_space(self, agent: str) -> spaces.Space:
-        return spaces.Discrete(N_STATES)
+        return self._observation_space
 
-    @functools.lru_cache(maxsize=None)
     def action_space(self, agent: str) -> spaces.Space:
-        return spaces.Discrete(3)
+        return self._action_space
 
     def reward_space(self, agent: str) -> spaces.Box:
         return self._reward_space

@@ -30,7 +30,8 @@ TEST_WEIGHTS = random_weights(2, 5, rng=0)
 
 
 def make_runner(n_agents: int = 2, seed: int = 0, max_steps: int | None = None) -> MultiAgentRunner:
-    return MultiAgentRunner(ParallelChainEnv(n_agents, max_steps=max_steps), default_learner_factory(**LEARNER), seed=seed)
+    env = ParallelChainEnv(n_agents, max_steps=max_steps)
+    return MultiAgentRunner(env, default_learner_factory(**LEARNER), seed=seed)
 
 
 def test_ma_sfols_builds_an_exact_ccs_and_stops(tmp_path):
@@ -105,7 +106,7 @@ def test_resume_after_interruption_gives_the_same_policy_set(tmp_path):
 
     a, b = GPIPolicy.load(tmp_path / "full" / "policy_set"), GPIPolicy.load(tmp_path / "cut" / "policy_set")
     assert len(a) == len(b)
-    for info_a, info_b in zip(a.infos, b.infos):
+    for info_a, info_b in zip(a.infos, b.infos, strict=True):
         np.testing.assert_allclose(info_a.weights, info_b.weights)
         np.testing.assert_allclose(info_a.value, info_b.value)
         assert (info_a.agent, info_a.iteration) == (info_b.agent, info_b.iteration)
