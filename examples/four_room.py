@@ -78,6 +78,8 @@ def main() -> None:
         algo_runs = [run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo]
         rows = [read_rows(run) for run in algo_runs]
         curves = align_runs([{int(r["iteration"]) + 1: float(r["mean_return"]) for r in rs} for rs in rows])
+        # Runs whose OLS ended early keep their final set: carry the last value to the common length.
+        curves = np.pad(curves, ((0, 0), (0, max_iterations(runs) - curves.shape[1])), mode="edge")
         mean, std = curves.mean(axis=0), curves.std(axis=0)
         wall = np.mean([float(rs[-1]["wall_time"]) for rs in rows])
         cells = " | ".join(f"{m:.3f} ± {s:.3f}" for m, s in zip(mean, std, strict=True))
