@@ -28,8 +28,8 @@ def four_room() -> dict[str, Any]:
             "exploration_fraction": 0.5,
             "exploration_final_eps": 0.05,
         },
-        "steps_per_iteration": 10_000,
-        "iterations": 12,
+        "steps_per_iteration": 20_000,
+        "iterations": 10,
         "n_test_weights": 12,
         "value_episodes": 1,
         "eval_episodes": 1,
@@ -37,17 +37,24 @@ def four_room() -> dict[str, Any]:
 
 
 def traffic() -> dict[str, Any]:
-    """The paper's three-intersection SUMO scenario with pedestrians (Sec. 5.2): MLP SFDQN per traffic light."""
+    """
+    The paper's three-intersection SUMO scenario with pedestrians (Sec. 5.2): an MLP SFDQN per traffic light.
+
+    Budget: ``iterations x steps_per_iteration`` joint steps (5 simulated seconds each) per agent, plus after
+    every iteration one value episode and a GPI episode for each of the 25 test weights (in ``eval_workers``
+    processes) -- about a quarter of an hour on two cores. Rewards are scaled by 0.02 (per-step changes of
+    waiting time are tens of seconds); episode metrics stay in seconds.
+    """
     from sfgpi_envs.traffic import TrafficSignalEnv
 
     return {
         "make_env": TrafficSignalEnv,
-        "env_kwargs": {"num_seconds": 500, "delta_time": 5, "min_green": 10, "max_green": 50},
+        "env_kwargs": {"num_seconds": 500, "delta_time": 5, "min_green": 10, "max_green": 50, "reward_scale": 0.02},
         "learner_kwargs": {
             "policy": "MlpPolicy",
             "learning_rate": 1e-3,
             "gamma": 0.95,
-            "buffer_size": 1_000_000,
+            "buffer_size": 100_000,
             "batch_size": 64,
             "learning_starts": 200,
             "train_freq": 1,
@@ -57,9 +64,24 @@ def traffic() -> dict[str, Any]:
             "exploration_final_eps": 0.05,
             "policy_kwargs": {"net_arch": [64, 64]},
         },
-        "steps_per_iteration": 2_000,
-        "iterations": 8,
+        "steps_per_iteration": 2_500,
+        "iterations": 6,
         "n_test_weights": 25,
         "value_episodes": 1,
+        "value_mode": "shared",  # each new policy run at all three intersections: values comparable across agents
         "eval_episodes": 1,
+        "eval_workers": 2,
+        # for `sb3-sfgpi compare` and its plots
+        "objectives": ["vehicles", "pedestrians"],
+        "baselines": {"fixed-time": {"signal_control": "fixed-time"}, "actuated": {"signal_control": "actuated"}},
+        "episode_metrics": [
+            ["vehicle_waiting_time_mean", "mean vehicle waiting time [s]"],
+            ["pedestrian_waiting_time_mean", "mean pedestrian waiting time [s]"],
+        ],
+        "step_metrics": [
+            ["vehicle_wait_total", "vehicle waiting time [s]"],
+            ["pedestrian_wait_total", "pedestrian waiting time [s]"],
+        ],
+        "compare_weights": [[1.0, 0.0], [0.8, 0.2], [0.6, 0.4], [0.5, 0.5], [0.4, 0.6], [0.2, 0.8], [0.0, 1.0]],
+        "fixed_weights": [[0.5, 0.5], [0.4, 0.6], [0.2, 0.8]],
     }

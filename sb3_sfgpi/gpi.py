@@ -2,7 +2,15 @@
 
 ``π(s) = argmax_a max_{π ∈ Π} w · ψ^π(s, a)``: any preference ``w`` gets a behaviour from the set,
 without training. All networks of a set share one architecture and are evaluated in a single batched
-pass (``torch.func.stack_module_state`` + ``vmap``).
+pass over their stacked parameters, built once after the set changes:
+
+* tabular sets: one gather of the observed rows from a ``(S, P·A·d)`` stack of the tables;
+* MLP sets (parameter-free features extractor, ``Linear`` layers and activations): the features are
+  extracted once and every layer is one batched matrix product over the ``P`` networks;
+* anything else: ``torch.func.stack_module_state`` + ``vmap`` over ``functional_call``.
+
+The three give the same ``ψ`` (the specialised ones skip the per-call overhead of ``vmap``, about a
+millisecond per decision; see ``benchmarks/bench_gpi.py``).
 
 Policy-set directory format (``GPIPolicy.save`` / ``GPIPolicy.load``)::
 
@@ -19,6 +27,7 @@ previous manifest or has none. Loading never runs code from the directory.
 from __future__ import annotations
 
 import copy
+import io
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,11 +36,19 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.torch_layers import FlattenExtractor
+from stable_baselines3.common.utils import is_vectorized_observation
 from torch import nn
 from torch.func import functional_call, stack_module_state
 
-from sb3_sfgpi.common.serialization import atomic_write_json, read_json, space_from_dict, space_to_dict
+from sb3_sfgpi.common.serialization import (
+    atomic_write_bytes,
+    atomic_write_json,
+    read_json,
+    space_from_dict,
+    space_to_dict,
+)
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.sfdqn.policies import SFNetwork, TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
@@ -107,7 +124,8 @@ def build_network(
         return TabularSFNetwork(observation_space, action_space, reward_dim)
     if spec.get("kind") == "mlp":
         if spec.get("activation_fn") not in _ACTIVATIONS:
-            raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {sorted(_ACTIVATIONS)}")
+            known = sorted(_ACTIVATIONS)
+            raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {known}")
         extractor = FlattenExtractor(observation_space)
         return SFNetwork(
             observation_space,
@@ -134,7 +152,8 @@ class GPIPolicy:
         self.device = th.device(device)
         self.networks: list[nn.Module] = []
         self.infos: list[PolicyInfo] = []
-        self._stacked: tuple[dict[str, th.Tensor], dict[str, th.Tensor], nn.Module] | None = None
+        self._stacked: _StackedTables | _StackedMLP | _StackedVmap | None = None
+        self._weights_cache: tuple[Any, tuple[np.ndarray, th.Tensor, np.ndarray]] | None = None
         for model in models:
             self.add(model)
 
@@ -204,26 +223,62 @@ class GPIPolicy:
         self.networks.append(copied)
         self.infos.append(PolicyInfo(w, v, agent, iteration))
         self._stacked = None
+        self._weights_cache = None
         return len(self.networks) - 1
 
-    def _stack(self) -> tuple[dict[str, th.Tensor], dict[str, th.Tensor], nn.Module]:
+    def _stack(self) -> _StackedTables | _StackedMLP | _StackedVmap:
         if self._stacked is None:
-            params, buffers = stack_module_state(self.networks)  # type: ignore[arg-type]
-            skeleton = copy.deepcopy(self.networks[0]).to("meta")
-            self._stacked = (params, buffers, skeleton)
+            first = self.networks[0]
+            if isinstance(first, TabularSFNetwork):
+                self._stacked = _StackedTables(self.networks)  # type: ignore[arg-type]
+            elif _StackedMLP.supports(first):
+                self._stacked = _StackedMLP(self.networks)  # type: ignore[arg-type]
+            else:
+                self._stacked = _StackedVmap(self.networks)
         return self._stacked
 
     def _psi(self, obs_tensor: th.Tensor) -> th.Tensor:
-        params, buffers, skeleton = self._stack()
-
-        def one(p: dict[str, th.Tensor], b: dict[str, th.Tensor], x: th.Tensor) -> th.Tensor:
-            return functional_call(skeleton, (p, b), (x,))
-
+        """``ψ`` of every policy, shape ``(n_policies, batch, n_actions, d)``, in one batched pass."""
         with th.no_grad():
-            return th.vmap(one, in_dims=(0, 0, None))(params, buffers, obs_tensor)
+            return self._stack().psi(obs_tensor)
+
+    def _psi_vmap(self, obs_tensor: th.Tensor) -> th.Tensor:
+        """``ψ`` by the generic ``vmap`` path, whatever the kind of network (a reference for tests and benchmarks)."""
+        with th.no_grad():
+            return _StackedVmap(self.networks).psi(obs_tensor)
 
     def _obs_to_tensor(self, observation: np.ndarray) -> tuple[th.Tensor, bool]:
         return self._first().obs_to_tensor(observation)
+
+    def _obs_to_array(self, observation: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The observation as a batch array and whether it was one (as SB3's ``obs_to_tensor``, without torch)."""
+        space = self.observation_space
+        if isinstance(observation, dict) or is_image_space(space):
+            obs_tensor, vectorized = self._obs_to_tensor(observation)
+            return obs_tensor.cpu().numpy(), vectorized
+        array = np.asarray(observation)
+        vectorized = is_vectorized_observation(array, space)
+        return array.reshape((-1, *space.shape)), vectorized  # type: ignore[misc]
+
+    def _validated_weights(self, w: np.ndarray | list[float]) -> tuple[np.ndarray, th.Tensor, np.ndarray]:
+        """
+        ``w`` checked and normalised: float64 array, float32 tensor on the set's device, float32 array.
+
+        The last weights are remembered, so acting many times for one ``w`` validates it once.
+        """
+        try:
+            raw = np.asarray(w, dtype=np.float64)
+        except (TypeError, ValueError):
+            raw = None
+        key = None if raw is None else (raw.shape, raw.tobytes())
+        cached = self._weights_cache
+        if key is not None and cached is not None and cached[0] == key:
+            return cached[1]
+        weights = validate_weights(w if raw is None else raw, self.reward_dim)
+        # float32 like the networks: Q = ψ · w is computed in single precision on every path.
+        result = (weights, th.as_tensor(weights, dtype=th.float32, device=self.device), weights.astype(np.float32))
+        self._weights_cache = (key, result)
+        return result
 
     def successor_features(self, observation: np.ndarray) -> np.ndarray:
         """
@@ -243,12 +298,17 @@ class GPIPolicy:
         :param w: preference weights of length ``d``
         :return: shape ``(batch, n_actions)``
         """
-        obs_tensor, _ = self._obs_to_tensor(observation)
-        return self._gpi_q(obs_tensor, w).cpu().numpy()
+        weights = self._validated_weights(w)
+        obs, _ = self._obs_to_array(observation)
+        return self._gpi_q(obs, weights)
 
-    def _gpi_q(self, obs_tensor: th.Tensor, w: np.ndarray | list[float]) -> th.Tensor:
-        weights = th.as_tensor(validate_weights(w, self.reward_dim), dtype=th.float32, device=self.device)
-        return (self._psi(obs_tensor) @ weights).max(dim=0).values
+    def _gpi_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
+        stacked = self._stack()
+        if isinstance(stacked, _StackedTables) and self.device.type == "cpu":
+            return stacked.q_values_numpy(obs, weights[2])
+        obs_tensor = th.as_tensor(obs, device=self.device)
+        with th.no_grad():
+            return th.amax(stacked.psi(obs_tensor) @ weights[1], dim=0).cpu().numpy()
 
     def predict(
         self,
@@ -269,8 +329,9 @@ class GPIPolicy:
         :return: the actions (a scalar array for one observation) and ``state``
         :raises ValueError: bad weights or an empty set
         """
-        obs_tensor, vectorized = self._obs_to_tensor(observation)
-        actions = self._gpi_q(obs_tensor, w).argmax(dim=1).cpu().numpy()
+        weights = self._validated_weights(w)
+        obs, vectorized = self._obs_to_array(observation)
+        actions = self._gpi_q(obs, weights).argmax(axis=1)
         return (actions if vectorized else actions[0]), state
 
     def save(self, path: str | Path) -> None:
@@ -282,9 +343,12 @@ class GPIPolicy:
         directory = Path(path)
         directory.mkdir(parents=True, exist_ok=True)
         entries = []
-        for i, (net, info) in enumerate(zip(self.networks, self.infos)):
+        for i, (net, info) in enumerate(zip(self.networks, self.infos, strict=True)):
             file = f"policy_{i:03d}.pt"
-            th.save({k: v.cpu() for k, v in net.state_dict().items()}, directory / file)
+            # Each file is replaced atomically too: an interrupted save leaves the previous set loadable.
+            buffer = io.BytesIO()
+            th.save({k: v.cpu() for k, v in net.state_dict().items()}, buffer)
+            atomic_write_bytes(directory / file, buffer.getvalue())
             entries.append(info.to_dict(file))
         first = self._first()
         atomic_write_json(
@@ -337,6 +401,106 @@ class GPIPolicy:
         except (KeyError, TypeError, ValueError, RuntimeError) as error:
             raise CorruptPolicySetError(f"cannot load the policy set in {directory}: {error}") from error
         return policy_set
+
+
+class _StackedTables:
+    """
+    The tables of a tabular set, stacked state-major: row ``s`` holds ``ψ^π(s, ·)`` of every policy ``π``.
+
+    ``ψ`` of a batch is one ``index_select`` of its rows (contiguous ``P·A·d`` floats per observation).
+    """
+
+    def __init__(self, networks: list[TabularSFNetwork]):
+        first = networks[0]
+        self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
+        self.n_states = first.table.num_embeddings
+        self.state_index = first.state_index
+        self.low = first.low.cpu().numpy()
+        self.strides = first.strides.cpu().numpy()
+        with th.no_grad():
+            self.tables = th.stack([net.table.weight for net in networks], dim=1).reshape(self.n_states, -1)
+        self.tables_numpy = self.tables.numpy() if self.tables.device.type == "cpu" else None
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        rows = self.tables.index_select(0, self.state_index(obs_tensor))
+        return rows.view(-1, self.n_policies, self.n_actions, self.reward_dim).transpose(0, 1)
+
+    def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """GPI action values of a batch, in numpy (CPU sets): cheaper than torch for a few small operations."""
+        assert self.tables_numpy is not None
+        index = ((obs.astype(np.int64).reshape(obs.shape[0], -1) - self.low) * self.strides).sum(axis=1)
+        if index.size and (index.min() < 0 or index.max() >= self.n_states):
+            raise IndexError(f"observation outside the table ({self.n_states} rows): {obs.tolist()}")
+        rows = self.tables_numpy.take(index, axis=0).reshape(-1, self.reward_dim)
+        return (rows @ weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
+
+
+class _StackedMLP:
+    """
+    MLP SF networks stacked layer by layer: weights ``(P, in, out)``, biases ``(P, 1, out)``.
+
+    The features extractor has no parameters, so the features are computed once and shared; each ``Linear``
+    of the ``P`` networks is then one ``baddbmm``.
+    """
+
+    def __init__(self, networks: list[SFNetwork]):
+        first = networks[0]
+        self.first = first
+        self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
+        self.layers: list[tuple[th.Tensor, th.Tensor] | nn.Module] = []
+        with th.no_grad():
+            for i, module in enumerate(first.sf_net):
+                if isinstance(module, nn.Linear):
+                    linears = [net.sf_net[i] for net in networks]
+                    weight = th.stack([lin.weight.transpose(0, 1) for lin in linears]).contiguous()
+                    bias = th.stack([lin.bias for lin in linears]).unsqueeze(1)
+                    self.layers.append((weight, bias))
+                else:
+                    self.layers.append(module)
+
+    @staticmethod
+    def supports(net: nn.Module) -> bool:
+        """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
+        if not isinstance(net, SFNetwork) or not isinstance(net.sf_net, nn.Sequential):
+            return False
+        extractor = net.features_extractor
+        if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):
+            return False
+        allowed = tuple(_ACTIVATIONS.values())
+        for module in net.sf_net:
+            if isinstance(module, nn.Linear):
+                if module.bias is None:
+                    return False
+            elif type(module) not in allowed:
+                return False
+        return True
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        features = self.first.extract_features(obs_tensor, self.first.features_extractor)
+        n_policies = self.n_policies
+        x = features.unsqueeze(0).expand(n_policies, *features.shape)
+        for layer in self.layers:
+            if isinstance(layer, tuple):
+                x = th.baddbmm(layer[1], x, layer[0])
+            else:
+                x = layer(x)
+        return x.view(n_policies, -1, self.n_actions, self.reward_dim)
+
+
+class _StackedVmap:
+    """Any networks of one architecture: ``stack_module_state`` + ``vmap`` over ``functional_call``."""
+
+    def __init__(self, networks: list[nn.Module]):
+        self.params, self.buffers = stack_module_state(networks)  # type: ignore[arg-type]
+        self.skeleton = copy.deepcopy(networks[0]).to("meta")
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        skeleton = self.skeleton
+
+        def one(p: dict[str, th.Tensor], b: dict[str, th.Tensor], x: th.Tensor) -> th.Tensor:
+            return functional_call(skeleton, (p, b), (x,))
+
+        return th.vmap(one, in_dims=(0, 0, None))(self.params, self.buffers, obs_tensor)
 
 
 def _read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:

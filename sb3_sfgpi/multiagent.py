@@ -48,6 +48,7 @@ class AgentVecEnv(VecEnv):
     """
 
     vector_rewards = True
+    render_mode = None  # the shared env is rendered by the runner's owner, not through a view
 
     def __init__(self, env: ParallelEnv, agent: str):
         super().__init__(1, env.observation_space(agent), env.action_space(agent))
@@ -195,7 +196,9 @@ class MultiAgentRunner:
         self.iteration = iteration
         self._close_learners()
         for agent in self.agents:
-            learner = self.learner_factory(agent, self.views[agent], weights[agent], derive_seed(self.seed, iteration, agent))
+            learner = self.learner_factory(
+                agent, self.views[agent], weights[agent], derive_seed(self.seed, iteration, agent)
+            )
             if init_networks and agent in init_networks:
                 learner.policy.sf_net.load_state_dict(init_networks[agent].state_dict())
                 learner.policy.sf_net_target.load_state_dict(init_networks[agent].state_dict())
@@ -241,14 +244,27 @@ class MultiAgentRunner:
         keep_going = True
         for agent in actions:
             keep_going &= self._learner_step(
-                agent, buffer_actions[agent], obs[agent], rewards[agent], terminations[agent], truncations[agent], infos[agent]
+                agent,
+                buffer_actions[agent],
+                obs[agent],
+                rewards[agent],
+                terminations[agent],
+                truncations[agent],
+                infos[agent],
             )
         if not self.env.agents:
             self._reset_env()
         return keep_going
 
     def _learner_step(
-        self, agent: str, buffer_action: np.ndarray, obs: Any, reward: Any, terminated: bool, truncated: bool, info: dict
+        self,
+        agent: str,
+        buffer_action: np.ndarray,
+        obs: Any,
+        reward: Any,
+        terminated: bool,
+        truncated: bool,
+        info: dict,
     ) -> bool:
         learner = self.learners[agent]
         callback = self._learner_callbacks[agent]
@@ -278,7 +294,10 @@ class MultiAgentRunner:
         learner._on_step()
         if done:
             learner._episode_num += 1
-        if learner.num_timesteps > learner.learning_starts and learner.num_timesteps % learner.train_freq.frequency == 0:  # type: ignore[union-attr]
+        if (
+            learner.num_timesteps > learner.learning_starts
+            and learner.num_timesteps % learner.train_freq.frequency == 0
+        ):  # type: ignore[union-attr]
             callback.on_rollout_end()
             learner.train(gradient_steps=max(learner.gradient_steps, 1), batch_size=learner.batch_size)
             callback.on_rollout_start()
@@ -313,7 +332,9 @@ class MultiAgentRunner:
         self._monitors = {}
         return returns
 
-    def learn(self, total_timesteps: int, callback: MaybeCallback = None, progress_bar: bool = False) -> MultiAgentRunner:
+    def learn(
+        self, total_timesteps: int, callback: MaybeCallback = None, progress_bar: bool = False
+    ) -> MultiAgentRunner:
         """
         Step the shared env until ``total_timesteps`` joint steps or until a callback returns False.
 
@@ -333,7 +354,9 @@ class MultiAgentRunner:
         if not self.learners:  # the callback has nothing to train (e.g. a finished run was resumed)
             callback.on_training_end()
             return self
-        bar = tqdm(total=total_timesteps, initial=self.num_timesteps, desc="training", unit="step", disable=not progress_bar)
+        bar = tqdm(
+            total=total_timesteps, initial=self.num_timesteps, desc="training", unit="step", disable=not progress_bar
+        )
         try:
             while self.num_timesteps < total_timesteps:
                 keep_going = self.step()

@@ -14,6 +14,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor, create_mlp
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 from torch.nn import functional as F
@@ -279,7 +280,7 @@ class SFDQNPolicy(BasePolicy):
         self.set_training_mode(False)
         obs_tensor, vectorized = self.obs_to_tensor(observation)
         with th.no_grad():
-            weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.device)
+            weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
             return greedy_actions(self.sf_net(obs_tensor), weights_tensor).cpu().numpy(), vectorized
 
     def td_update(
@@ -318,8 +319,29 @@ class SFDQNPolicy(BasePolicy):
         return loss.item()
 
     def set_training_mode(self, mode: bool) -> None:
-        self.sf_net.set_training_mode(mode)
-        self.training = mode
+        """
+        Put the SF network in training or evaluation mode, as SB3's ``set_training_mode``.
+
+        SB3 flips the mode twice per step when training every step (evaluation to act, training to learn), and
+        the recursive ``Module.train`` costs more than a tabular update. When no module of the SF network
+        overrides ``train``, the same ``training`` flags are set directly on its modules, listed once per SF
+        network object (SF networks do not gain submodules after they are built).
+        """
+        sf_net = self.sf_net
+        if self.training is mode and sf_net.training is mode:
+            return
+        cached = self.__dict__.get("_mode_modules")
+        if cached is None or cached[0] is not sf_net:
+            modules = list(sf_net.modules())
+            plain = all(type(module).train is nn.Module.train for module in modules)
+            cached = (sf_net, modules if plain else None)
+            self.__dict__["_mode_modules"] = cached
+        if cached[1] is not None and isinstance(mode, bool):
+            for module in cached[1]:
+                object.__setattr__(module, "training", mode)  # what Module.train does, minus the recursion
+        else:
+            sf_net.set_training_mode(mode)
+        object.__setattr__(self, "training", mode)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -398,13 +420,19 @@ class TabularPolicy(SFDQNPolicy):
         # A numpy view sharing memory with the table: updates through it are updates of the module.
         return net.table.weight.detach().numpy().reshape(-1, net.n_actions, self.reward_dim)
 
+    def _on_cpu(self) -> bool:
+        # ``self.device`` walks the parameters; the table's own tensor says it directly.
+        return self.sf_net.table.weight.device.type == "cpu"
+
     def greedy(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """``argmax_a w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.greedy`)."""
-        if self.device.type != "cpu":
+        if not self._on_cpu():
             return super().greedy(observation, weights)
-        vectorized = self.is_vectorized_observation(observation)
+        # SB3's is_vectorized_observation, without its image-transpose step (integer spaces are never images).
+        vectorized = is_vectorized_observation(observation, self.observation_space)
+        net = self.sf_net
         obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
-        psi = self._table(self.sf_net)[self.sf_net.rows(obs)]
+        psi = net.table.weight.detach().numpy()[net.rows(obs)].reshape(-1, net.n_actions, self.reward_dim)
         return (psi @ np.asarray(weights, dtype=np.float32)).argmax(axis=1), vectorized
 
     def td_update(
@@ -426,19 +454,25 @@ class TabularPolicy(SFDQNPolicy):
 
         :return: the loss before the step
         """
-        if self.device.type != "cpu":
+        net, target_net = self.sf_net, self.sf_net_target
+        weight = net.table.weight
+        if weight.device.type != "cpu":
             raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
-        if vec_normalize_env is not None:
+        if vec_normalize_env is not None and vec_normalize_env.norm_obs:
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
         obs, actions, next_obs, dones, rewards = replay_buffer.sample_arrays(batch_size)
-        table = self._table(self.sf_net)
-        next_rows = self.sf_net.rows(next_obs)
-        next_online = table[next_rows]
-        next_actions = (next_online @ self.weights.numpy()).argmax(axis=1)
-        next_psi = next_online if self.sf_net_target is self.sf_net else self._table(self.sf_net_target)[next_rows]
-        target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_psi[np.arange(batch_size), next_actions]
-        entries = table.reshape(-1, self.reward_dim)
-        flat = self.sf_net.rows(obs) * self.sf_net.n_actions + actions.astype(np.int64)
+        n_actions, reward_dim = net.n_actions, self.reward_dim
+        # The table's memory seen as one row of ψ(s, a) per (state, action): entry s * n_actions + a.
+        entries = weight.detach().numpy().reshape(-1, reward_dim)
+        next_first = net.rows(next_obs) * n_actions
+        next_online = entries[next_first[:, None] + np.arange(n_actions)]
+        next_flat = next_first + (next_online @ self.weights.numpy()).argmax(axis=1)
+        if target_net is not net:
+            next_entries = target_net.table.weight.detach().numpy().reshape(-1, reward_dim)
+        else:
+            next_entries = entries
+        target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_entries[next_flat]
+        flat = net.rows(obs) * n_actions + actions.astype(np.int64)
         td_error = target_psi - entries[flat]
         np.add.at(entries, flat, self.optimizer.param_groups[0]["lr"] * td_error)
         return float(0.5 * np.square(td_error).sum())

@@ -208,7 +208,7 @@ class SFDQN(OffPolicyAlgorithm):
         ]
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/loss", np.mean(losses))
+        self.logger.record("train/loss", sum(losses) / len(losses))
 
     def predict(
         self,
@@ -237,6 +237,34 @@ class SFDQN(OffPolicyAlgorithm):
             return (actions if vectorized else actions[0]), state
         actions, vectorized = self.policy.greedy(observation, weights)
         return (actions if vectorized else actions[0]), state
+
+    def _store_transition(
+        self,
+        replay_buffer: ReplayBuffer,
+        buffer_action: np.ndarray,
+        new_obs: np.ndarray | dict[str, np.ndarray],
+        reward: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        """
+        SB3's ``_store_transition`` without its deep copy of the observation on every step.
+
+        The buffer copies what it stores; the next observations need a copy of their own only where a finished
+        episode's terminal observation replaces the first observation of the next one.
+        """
+        if self._vec_normalize_env is not None or not isinstance(new_obs, np.ndarray):
+            super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+            return
+        self._last_original_obs = self._last_obs
+        next_obs = new_obs
+        for i, done in enumerate(dones):
+            if done and infos[i].get("terminal_observation") is not None:
+                if next_obs is new_obs:
+                    next_obs = new_obs.copy()
+                next_obs[i] = infos[i]["terminal_observation"]
+        replay_buffer.add(self._last_original_obs, next_obs, buffer_action, reward, dones, infos)  # type: ignore[arg-type]
+        self._last_obs = new_obs  # type: ignore[assignment]
 
     def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
         # MOMonitor reports vector returns; the scalar return SB3 logs is w · return for the current w.

@@ -1,0 +1,127 @@
+"""Run the benchmarks and print one markdown table.
+
+    python -m benchmarks                 # everything (about 15 minutes on 2 cores)
+    python -m benchmarks --quick         # shorter runs, under two minutes
+    python -m benchmarks gpi ols         # only some (names: gpi, training, ols, traffic, memory)
+    python -m benchmarks --output results.md
+
+Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
+repeats; the ratio is candidate speed / baseline speed (or baseline bytes / candidate bytes for memory),
+so > 1 means the candidate is better.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib
+import os
+import platform
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from benchmarks._common import Row, single_thread_torch
+
+BENCHMARKS = {
+    "gpi": "benchmarks.bench_gpi",
+    "training": "benchmarks.bench_training",
+    "ols": "benchmarks.bench_ols",
+    "traffic": "benchmarks.bench_traffic",
+    "memory": "benchmarks.bench_memory",
+}
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _versions() -> str:
+    import numpy
+    import scipy
+    import stable_baselines3
+    import torch
+
+    parts = [
+        f"Python {platform.python_version()}",
+        f"torch {torch.__version__}",
+        f"SB3 {stable_baselines3.__version__}",
+        f"numpy {numpy.__version__}",
+        f"scipy {scipy.__version__}",
+    ]
+    try:
+        import libsumo
+
+        parts.append(f"{libsumo.getVersion()[1]} (libsumo)")
+    except Exception:  # noqa: BLE001 - SUMO is optional for the header
+        pass
+    return ", ".join(parts)
+
+
+def header(argv: list[str]) -> str:
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "?"
+    return "\n".join(
+        [
+            f"- Machine: {_cpu_model()}, {os.cpu_count()} logical cores ({platform.system()} {platform.release()}), "
+            f"load average at start {load}; torch limited to 1 thread",
+            f"- Versions: {_versions()}",
+            f"- Date: {datetime.date.today().isoformat()}",
+            f"- Command: `python -m benchmarks{' ' + ' '.join(argv) if argv else ''}`",
+        ]
+    )
+
+
+def markdown(rows: list[Row]) -> str:
+    lines = [
+        "| Benchmark | Case | Candidate | Baseline | Ratio | Target | Notes |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        ratio = "" if row.ratio is None else f"{row.ratio:.2f}×"
+        target = row.target
+        if row.met is not None:
+            target = f"{target} {'✓' if row.met else '✗'}".strip()
+        cells = [row.benchmark, row.case, row.candidate, row.baseline, ratio, target, row.note]
+        lines.append("| " + " | ".join(cell.replace("|", "\\|") for cell in cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
+    parser.add_argument("names", nargs="*", choices=[*BENCHMARKS, []], help="benchmarks to run (default: all)")
+    parser.add_argument("--quick", action="store_true", help="short runs (under two minutes in total)")
+    parser.add_argument("--output", type=Path, help="also write the markdown (header + table) to this file")
+    args = parser.parse_args(argv)
+    single_thread_torch()
+    names = args.names or list(BENCHMARKS)
+    rows: list[Row] = []
+    failed = False
+    start = time.perf_counter()
+    for name in names:
+        print(f"[benchmarks] {name} ...", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        try:
+            module = importlib.import_module(BENCHMARKS[name])
+            rows.extend(module.run(quick=args.quick))
+        except Exception:  # noqa: BLE001 - report and go on with the other benchmarks
+            failed = True
+            traceback.print_exc()
+            rows.append(Row(name, "failed", "see the traceback above"))
+        print(f"[benchmarks] {name} done in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    text = f"{header(argv)}\n- Wall time: {time.perf_counter() - start:.0f} s\n\n{markdown(rows)}\n"
+    print(text)
+    if args.output is not None:
+        args.output.write_text(text)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

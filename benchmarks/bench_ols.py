@@ -1,0 +1,181 @@
+"""OLS: corner weights against the brute-force enumeration of ``tests/ols_reference.py``, and the whole OLS step.
+
+Value sets: ``n`` points on the positive orthant of the unit sphere in ``d`` dimensions (seeded). Every such point
+is the unique best value for the weight along it, so all ``n`` are in the CCS (``|CCS| = n``).
+
+* **Corner weights**: ``OLS.corner_weights()`` (Qhull halfspace intersection, then deduplication) vs
+  ``brute_force_corner_weights`` (one linear solve per ``d``-subset of the ``n + d`` hyperplanes:
+  ``C(n + d, d)`` solves). Both give the same corners (checked when both run). A side is not run when its
+  estimated time exceeds the budget; the table then gives the estimate (brute force: ``C(n + d, d)`` times the
+  measured time per subset; OLS: the deduplication's pairwise comparisons times their measured cost).
+* **OLS step**: one ``OLS.add_solution`` (corner weights, optimistic priority LPs of the new corners, coverage
+  LPs of the CCS members) for a new CCS value, the OLS already holding the ``n`` values and their ``n`` visited
+  weights: the cost of one MA-SFOLS iteration's bookkeeping at that size.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import HalfspaceIntersection
+
+from benchmarks._common import Row, fmt_time
+from sb3_sfgpi import ols as ols_module
+from sb3_sfgpi.ols import OLS
+
+NAME = "ols"
+TOL = 1e-6
+
+
+def _brute_force():
+    tests = str(Path(__file__).resolve().parents[1] / "tests")
+    if tests not in sys.path:
+        sys.path.insert(0, tests)
+    from ols_reference import brute_force_corner_weights
+
+    return brute_force_corner_weights
+
+
+def sphere_values(n: int, d: int, seed: int = 0) -> np.ndarray:
+    """``n`` points of the positive orthant of the unit sphere: all of them in the CCS."""
+    g = np.abs(np.random.default_rng(seed).normal(size=(n, d))) + 1e-3
+    return g / np.linalg.norm(g, axis=1, keepdims=True)
+
+
+def qhull_vertices(values: np.ndarray) -> int:
+    """How many vertices Qhull hands to the deduplication (the same halfspaces as ``ols._corner_weights``)."""
+    n, d = values.shape
+    scaled = (values - values.min()) / (values.max() - values.min())
+    last = scaled[:, -1:]
+    cap = ols_module._CAP
+    halfspaces = np.vstack(
+        [
+            np.hstack([scaled[:, :-1] - last, -np.ones((n, 1)), last]),
+            np.hstack([-np.eye(d - 1), np.zeros((d - 1, 2))]),
+            np.concatenate([np.ones(d - 1), [0.0, -1.0]]),
+            np.concatenate([np.zeros(d - 1), [1.0, -cap]]),
+        ]
+    )
+    center = np.full(d, 1.0 / d)
+    interior = np.append(center[:-1], (np.max(scaled @ center) + cap) / 2)
+    vertices = HalfspaceIntersection(halfspaces, interior).intersections
+    return int(np.sum(vertices[:, -1] < (1.0 + cap) / 2))
+
+
+def _time(fn, repeats: int) -> float:
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        samples.append(time.perf_counter() - start)
+    return float(np.median(samples))
+
+
+def _cost_per_comparison() -> float:
+    """Seconds per weight comparison in the deduplication (``ols._same``)."""
+    a, b = np.random.default_rng(1).random((2, 6))
+    start = time.perf_counter()
+    for _ in range(2000):
+        ols_module._same(a, b, TOL)
+    return (time.perf_counter() - start) / 2000
+
+
+def run(quick: bool = False) -> list[Row]:
+    brute_force = _brute_force()
+    budget = 2.0 if quick else 60.0
+    repeats = 3 if quick else 5
+    per_comparison = _cost_per_comparison()
+    # Brute force: seconds per d-subset, measured on a small case.
+    small = sphere_values(8, 3)
+    per_subset = _time(lambda: brute_force(small, TOL), 3) / math.comb(8 + 3, 3)
+    rows = []
+    for d in (2, 3, 4, 6):
+        for n in (10, 100, 500):
+            values = sphere_values(n, d)
+            m = qhull_vertices(values)
+            ols = OLS(d, tolerance=TOL)
+            ols._values = list(values)  # the corner weights depend on the values only
+            estimate_ols = m * m / 2 * per_comparison  # the deduplication dominates beyond a few hundred vertices
+            subsets = math.comb(n + d, d)
+            estimate_bf = subsets * per_subset
+            run_ols = estimate_ols <= budget
+            run_bf = estimate_bf <= budget
+            t_ols = _time(ols.corner_weights, repeats if estimate_ols < budget / 10 else 1) if run_ols else estimate_ols
+            t_bf = _time(lambda v=values: brute_force(v, TOL), 1) if run_bf else estimate_bf
+            corners = len(ols.corner_weights()) if run_ols else None
+            agree = ""
+            if run_ols and run_bf:
+                # Every corner OLS finds is one of the brute force's; the brute force also keeps intersections
+                # within its feasibility slack (1e-6) below the surface, hence sometimes a few more points.
+                found, expected = np.array(ols.corner_weights()), brute_force(values, TOL)
+                gaps = [np.min(np.max(np.abs(expected - w), axis=1)) for w in found]
+                assert max(gaps) <= 1e-5, (d, n, max(gaps))
+                agree = f"all {len(found)} in the brute force's {len(expected)}; "
+            t_qhull = _time(lambda v=values: qhull_vertices(v), repeats)
+            notes = [
+                f"{agree}{'' if corners is None else f'{corners} corners, '}{m} Qhull vertices; "
+                f"Qhull alone {fmt_time(t_qhull)}"
+            ]
+            if not run_ols:
+                notes.append("OLS not run: estimated from the quadratic deduplication")
+            if not run_bf:
+                notes.append(f"brute force not run: C({n + d},{d}) = {subsets:.3g} solves")
+            rows.append(
+                Row(
+                    "OLS corner weights",
+                    f"d={d} |CCS|={n}",
+                    fmt_time(t_ols) + ("" if run_ols else " (estimated)"),
+                    fmt_time(t_bf) + ("" if run_bf else " (estimated)"),
+                    t_bf / t_ols if run_ols and run_bf else None,
+                    "",
+                    None,
+                    "; ".join(notes),
+                )
+            )
+    # The whole OLS step ----------------------------------------------------------------------------------------
+    for d in (2, 3, 4, 6):
+        for n in (10, 100, 500):
+            values = sphere_values(n + 1, d, seed=d)
+            m = qhull_vertices(values)
+            estimate = m * m / 2 * per_comparison + n * 0.01
+            if estimate > budget:
+                rows.append(
+                    Row(
+                        "OLS step",
+                        f"d={d} |CCS|={n}",
+                        f"{fmt_time(estimate)} (estimated)",
+                        note=f"not run: estimated from the corner weights' deduplication ({m} vertices)",
+                    )
+                )
+                continue
+            base = OLS(d, tolerance=TOL)
+            base._values = list(values[:n])
+            base._visited = [v / v.sum() for v in values[:n]]
+            base._ccs = list(range(n))
+            base._queue = []
+            new_value, new_weight = values[n], values[n] / values[n].sum()
+            samples, corner_times = [], []
+            for _ in range(1 if quick or estimate > budget / 10 else 3):
+                ols = copy.deepcopy(base)
+                start = time.perf_counter()
+                ols.add_solution(new_value, new_weight)
+                samples.append(time.perf_counter() - start)
+                start = time.perf_counter()
+                ols.corner_weights()
+                corner_times.append(time.perf_counter() - start)
+            step, corners_t = float(np.median(samples)), float(np.median(corner_times))
+            rows.append(
+                Row(
+                    "OLS step",
+                    f"d={d} |CCS|={n}",
+                    f"{fmt_time(step)}/iteration",
+                    note=f"corner weights {fmt_time(corners_t)}, "
+                    f"LPs and bookkeeping {fmt_time(max(step - corners_t, 0))}; {len(ols.queue)} corners queued",
+                )
+            )
+    return rows

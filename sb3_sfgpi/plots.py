@@ -1,0 +1,241 @@
+"""The figures of ``sb3-sfgpi plot``.
+
+* :func:`plot_returns` -- GPI return over OLS iterations, mean ± std over seeds, one line per algorithm
+  (paper Fig. 4 and Fig. 7), from run directories;
+* :func:`plot_step_metrics` -- a per-step quantity over an evaluation episode (e.g. the vehicles' or the
+  pedestrians' waiting time) for GPI at several weights (paper Figs. 8-10), from a comparison file;
+* :func:`plot_versus` -- GPI against the learners trained from scratch for one fixed weight, per objective
+  (paper Figs. 11-15), from a comparison file;
+* :func:`plot_tradeoff` -- the per-objective episode metrics of every method in one scatter plot.
+
+A comparison file is what ``sb3-sfgpi compare`` writes (see :mod:`sb3_sfgpi.cli`): one row per evaluated
+method with its weights, returns, episode metrics and per-step traces (sum over agents, mean and std over
+episodes).
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+LABELS = {"ma-sfols": "MA-SFOLS + GPI", "random": "Random + GPI", "fixed": "fixed-weight learners"}
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, output: Path) -> Path:
+    output.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(output, dpi=120)
+    _pyplot().close(fig)
+    return output
+
+
+def align_runs(runs: list[dict[int, float]]) -> np.ndarray:
+    """
+    One row per run over the union of their iterations; a run that stopped early (OLS ended: its set is
+    complete) keeps its last value.
+
+    :param runs: per run, iteration -> value
+    :return: shape ``(n_runs, n_iterations)``
+    """
+    iterations = sorted(set().union(*runs))
+    rows = []
+    for run in runs:
+        last, row = np.nan, []
+        for i in iterations:
+            last = run.get(i, last)
+            row.append(last)
+        rows.append(row)
+    return np.array(rows)
+
+
+def plot_returns(
+    runs: Sequence[tuple[str, Path]], output: Path, metric: str = "mean_return", title: str | None = None
+) -> Path:
+    """
+    GPI's ``metric`` over iterations (``evaluation.csv`` of each run), mean ± std over the runs of an algorithm.
+
+    :param runs: (algorithm, run directory) pairs
+    :param output: the PNG file
+    :param metric: a column of ``evaluation.csv``
+    :param title: the title (default: a description of the curve)
+    """
+    curves: dict[str, list[dict[int, float]]] = {}
+    for algorithm, run_dir in runs:
+        with open(run_dir / "evaluation.csv") as handle:
+            rows = list(csv.DictReader(handle))
+        curves.setdefault(algorithm, []).append(
+            {int(row["iteration"]) + 1: float(row[metric]) for row in rows if row[metric] != ""}
+        )
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for algorithm, values_by_run in sorted(curves.items()):
+        values = align_runs(values_by_run)
+        iterations = sorted(set().union(*values_by_run))
+        mean, std = values.mean(axis=0), values.std(axis=0)
+        ax.plot(iterations, mean, marker="o", label=f"{LABELS.get(algorithm, algorithm)} ({len(values_by_run)} seeds)")
+        ax.fill_between(iterations, mean - std, mean + std, alpha=0.2)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel(metric.replace("_", " "))
+    ax.set_title(title or "GPI over the policy set, mean over test weights and agents")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _save(fig, output)
+
+
+# --- comparison files -------------------------------------------------------------------------------------
+def _format_w(w: Sequence[float]) -> str:
+    return "[" + ", ".join(f"{x:g}" for x in np.round(w, 3)) + "]"
+
+
+def _weights_tag(w: Sequence[float]) -> str:
+    return "-".join(f"{x:g}" for x in np.round(w, 3))
+
+
+def _step_metrics(compare: dict[str, Any]) -> list[tuple[int, str, str, str]]:
+    """(objective index, objective name, step-metric key, its label) for every objective with a step metric."""
+    names = compare.get("objectives") or [f"objective {i}" for i in range(len(compare["step_metrics"]))]
+    return [(i, names[i], key, label) for i, (key, label) in enumerate(compare["step_metrics"])]
+
+
+def _trace(row: dict[str, Any], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    traces = row["traces"]
+    if key not in traces:
+        raise ValueError(f"the comparison has no per-step {key!r} for {row['label']}")
+    x = np.asarray(traces.get("time") or np.arange(1, len(traces[key]["mean"]) + 1), dtype=np.float64)
+    return x, np.asarray(traces[key]["mean"], dtype=np.float64), np.asarray(traces[key]["std"], dtype=np.float64)
+
+
+def plot_step_metrics(compare: dict[str, Any], output_dir: Path, zoom_threshold: float = 0.5) -> list[Path]:
+    """
+    For each objective: its per-step metric over the episode for GPI at every weight of the comparison (paper
+    Figs. 8 and 9), and a zoom on the policies that favour it, ``w_i >= zoom_threshold`` (paper Fig. 10).
+
+    The legend shows the weight of the objective plotted (``w_i``; with two objectives the other is ``1 - w_i``).
+
+    :param compare: a comparison (``sb3-sfgpi compare``)
+    :param output_dir: where ``steps_<objective>.png`` and ``steps_<objective>_zoom.png`` go
+    :return: the files written
+    """
+    rows = sorted((r for r in compare["rows"] if r["method"] == "gpi"), key=lambda r: tuple(r["weights"]))
+    if not rows:
+        raise ValueError("the comparison has no GPI rows")
+    plt = _pyplot()
+    cmap = plt.get_cmap("viridis")
+    written = []
+    for i, name, key, label in _step_metrics(compare):
+        ordered = sorted(rows, key=lambda r: r["weights"][i])
+        for zoom in (False, True):
+            fig, ax = plt.subplots(figsize=(7, 4.2))
+            shown = []
+            for row in ordered:
+                wi = row["weights"][i]
+                x, mean, _ = _trace(row, key)
+                ax.plot(x, mean, color=cmap(wi), label=f"w{i} = {wi:.2f}", lw=1.5)
+                if wi >= zoom_threshold:
+                    shown.append(mean)
+            if zoom and shown:
+                low, high = float(np.min(shown)), float(np.max(shown))
+                margin = 0.05 * (high - low) + 1e-9
+                ax.set_ylim(low - margin, high + margin)
+            ax.set_xlabel("simulated time [s]")
+            ax.set_ylabel(label)
+            title = f"{label.split(' [')[0]} for policies generated by GPI"
+            ax.set_title(title + (f" (zoom: w{i} >= {zoom_threshold:g})" if zoom else ""))
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8, ncol=2)
+            written.append(_save(fig, output_dir / f"steps_{name}{'_zoom' if zoom else ''}.png"))
+    return written
+
+
+def plot_versus(compare: dict[str, Any], output_dir: Path) -> list[Path]:
+    """
+    For each weight with a fixed-weight learner: GPI and that learner (and the program baselines, dashed),
+    one panel per objective, per-step metric over the episode, mean ± std over episodes (paper Figs. 11-15).
+
+    :param compare: a comparison (``sb3-sfgpi compare``)
+    :param output_dir: where ``versus_w<w>.png`` go
+    :return: the files written
+    """
+    gpi = {tuple(np.round(r["weights"], 6)): r for r in compare["rows"] if r["method"] == "gpi"}
+    fixed = [r for r in compare["rows"] if r["method"] == "fixed"]
+    baselines = [r for r in compare["rows"] if r["method"] == "baseline"]
+    if not fixed:
+        raise ValueError("the comparison has no fixed-weight learners (sb3-sfgpi compare --fixed RUN)")
+    plt = _pyplot()
+    metrics = _step_metrics(compare)
+    written = []
+    done: set[tuple[float, ...]] = set()
+    for row in fixed:
+        w = tuple(np.round(row["weights"], 6))
+        if w in done:
+            continue
+        done.add(w)
+        learners = [r for r in fixed if tuple(np.round(r["weights"], 6)) == w]
+        fig, axes = plt.subplots(1, len(metrics), figsize=(6 * len(metrics), 4), squeeze=False)
+        for ax, (_, name, key, label) in zip(axes[0], metrics, strict=True):
+            curves = [(gpi[w], "MA-SFOLS + GPI", "-")] if w in gpi else []
+            curves += [(r, r["label"], "-") for r in learners] + [(r, r["label"], "--") for r in baselines]
+            for curve, text, style in curves:
+                x, mean, std = _trace(curve, key)
+                (line,) = ax.plot(x, mean, style, label=text, lw=1.5 if style == "-" else 1.0)
+                if style == "-":
+                    ax.fill_between(x, mean - std, mean + std, alpha=0.15, color=line.get_color())
+            ax.set_xlabel("simulated time [s]")
+            ax.set_ylabel(label)
+            ax.set_title(f"w = {_format_w(w)} ({name})")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+        written.append(_save(fig, output_dir / f"versus_w{_weights_tag(w)}.png"))
+    return written
+
+
+def plot_tradeoff(compare: dict[str, Any], output: Path) -> Path:
+    """
+    The first two episode metrics of every method against each other: GPI at every weight (a line in the
+    order of ``w``), the fixed-weight learners and the baselines.
+
+    :param compare: a comparison (``sb3-sfgpi compare``)
+    :param output: the PNG file
+    """
+    metrics = compare["episode_metrics"]
+    if len(metrics) < 2:
+        raise ValueError("the trade-off plot needs two episode metrics")
+    (kx, lx), (ky, ly) = metrics[0], metrics[1]
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+
+    def point(row: dict[str, Any]) -> tuple[float, float, float, float]:
+        mx, my = row["episode_metrics"][kx], row["episode_metrics"][ky]
+        return mx["mean"], my["mean"], mx["std"], my["std"]
+
+    gpi = sorted((r for r in compare["rows"] if r["method"] == "gpi"), key=lambda r: tuple(r["weights"]))
+    if gpi:
+        pts = np.array([point(r) for r in gpi])
+        ax.errorbar(pts[:, 0], pts[:, 1], xerr=pts[:, 2], yerr=pts[:, 3], fmt="o-", label="MA-SFOLS + GPI", capsize=2)
+        for row, (x, y, _, _) in zip(gpi, pts, strict=True):
+            ax.annotate(_format_w(row["weights"]), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
+    markers = iter("s^vD<>p*h")
+    for row in compare["rows"]:
+        if row["method"] == "gpi":
+            continue
+        x, y, sx, sy = point(row)
+        ax.errorbar([x], [y], xerr=[sx], yerr=[sy], fmt=next(markers, "x"), label=row["label"], capsize=2)
+    ax.set_xlabel(lx)
+    ax.set_ylabel(ly)
+    ax.set_title("per-objective outcome (mean ± std over episodes)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return _save(fig, output)

@@ -1,0 +1,181 @@
+"""The fast paths give the same results as the straightforward code they replace (no timing here: see benchmarks/).
+
+* GPI: the stacked tabular gather and the stacked MLP layers equal the generic ``vmap`` path;
+* replay sampling: one ``take`` per array equals indexing with (transition, env) index pairs, with the same random
+  numbers drawn;
+* ``set_training_mode``: the same ``training`` flags as ``Module.train``;
+* ``SFDQN._store_transition`` stores what SB3's stores and leaves the new observation untouched.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from momdp import Fig1MOMDP
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from torch import nn
+
+from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.gpi import GPIPolicy, _StackedMLP, _StackedTables, _StackedVmap
+from sb3_sfgpi.sfdqn import SFDQN
+
+# --------------------------------------------------------------------------------------------------------------
+# GPI
+# --------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["mlp", "tabular"])
+def test_stacked_gpi_paths_equal_the_vmap_path(kind, make_random_mlp, make_random_tabular):
+    make = make_random_mlp if kind == "mlp" else make_random_tabular
+    policy_set = GPIPolicy()
+    for seed in range(6):
+        policy_set.add(make(seed), weights=[1.0, 1.0, 1.0])
+    space = policy_set.observation_space
+    space.seed(3)
+    observations = np.stack([space.sample() for _ in range(17)])
+    obs_tensor, _ = policy_set._obs_to_tensor(observations)
+    assert isinstance(policy_set._stack(), _StackedMLP if kind == "mlp" else _StackedTables)
+    reference = policy_set._psi_vmap(obs_tensor)
+    np.testing.assert_allclose(policy_set.successor_features(observations), reference.numpy(), rtol=1e-6, atol=1e-6)
+    for w in ([1.0, 0.0, 0.0], [0.2, 0.3, 0.5]):
+        weights = th.as_tensor(np.asarray(w) / np.sum(w), dtype=th.float32)
+        q = th.amax(reference @ weights, dim=0).numpy()
+        np.testing.assert_allclose(policy_set.q_values(observations, w), q, rtol=1e-5, atol=1e-6)
+        np.testing.assert_array_equal(policy_set.predict(observations, w)[0], q.argmax(axis=1))
+    # Adding a policy restacks.
+    policy_set.add(make(99), weights=[1.0, 0.0, 0.0])
+    assert policy_set.successor_features(observations).shape[0] == 7
+
+
+def test_weights_are_validated_on_every_call_even_when_cached(make_random_tabular):
+    policy_set = GPIPolicy()
+    policy_set.add(make_random_tabular(0), weights=[1.0, 1.0, 1.0])
+    observation = policy_set.observation_space.sample()
+    w = np.array([0.2, 0.3, 0.5])
+    first = policy_set.predict(observation, w)[0]
+    assert policy_set.predict(observation, w)[0] == first
+    w[0] = -1.0  # the same array object, now invalid
+    with pytest.raises(ValueError, match="non-negative"):
+        policy_set.predict(observation, w)
+
+
+def test_tabular_gpi_refuses_observations_outside_the_table(make_random_tabular):
+    policy_set = GPIPolicy()
+    policy_set.add(make_random_tabular(0), weights=[1.0, 1.0, 1.0])  # MultiDiscrete([3, 4, 2])
+    with pytest.raises(IndexError):
+        policy_set.predict(np.array([3, 3, 1]), [1.0, 0.0, 0.0])
+    with pytest.raises(IndexError):
+        policy_set.predict(np.array([-1, 0, 0]), [1.0, 0.0, 0.0])
+
+
+def test_networks_the_stacked_mlp_does_not_know_use_vmap(make_random_mlp):
+    odd = make_random_mlp(0)
+    odd.sf_net = nn.Sequential(odd.sf_net[0], nn.Softplus(), *list(odd.sf_net)[2:])
+    assert not _StackedMLP.supports(odd)
+    policy_set = GPIPolicy()
+    policy_set.add(odd, weights=[1.0, 0.0, 0.0])
+    observations = np.random.default_rng(0).uniform(-1, 1, size=(5, 4)).astype(np.float32)
+    assert isinstance(policy_set._stack(), _StackedVmap)
+    with th.no_grad():
+        expected = odd(th.as_tensor(observations)).numpy()
+    np.testing.assert_allclose(policy_set.successor_features(observations)[0], expected, rtol=1e-6, atol=1e-6)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Replay sampling
+# --------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n_envs", [1, 3])
+@pytest.mark.parametrize("optimize_memory_usage", [False, True])
+def test_sampled_arrays_equal_two_index_reads_with_the_same_random_numbers(n_envs, optimize_memory_usage):
+    buffer = MOReplayBuffer(
+        50, spaces.Box(0, 1, (4,)), spaces.Discrete(3), "cpu", n_envs, optimize_memory_usage, reward_dim=2
+    )
+    rng = np.random.default_rng(0)
+    for _ in range(80):  # wraps around
+        buffer.add(
+            rng.random((n_envs, 4)).astype(np.float32),
+            rng.random((n_envs, 4)).astype(np.float32),
+            rng.integers(0, 3, (n_envs,)),
+            rng.random((n_envs, 2)).astype(np.float32),
+            rng.random(n_envs) < 0.2,
+            [{"TimeLimit.truncated": bool(rng.random() < 0.5)} for _ in range(n_envs)],
+        )
+    np.random.seed(1)
+    inds = buffer._sample_indices(64)
+    found = buffer._arrays(inds)
+    after = np.random.random()
+    np.random.seed(1)
+    inds = buffer._sample_indices(64)
+    envs = np.random.randint(0, high=n_envs, size=(64,))
+    size = buffer.buffer_size  # SB3 divides the size by n_envs
+    source = buffer.observations[(inds + 1) % size] if optimize_memory_usage else buffer.next_observations[inds]
+    expected = (
+        buffer.observations[inds, envs, :],
+        buffer.actions[inds, envs, :],
+        source[np.arange(64), envs, :],
+        (buffer.dones[inds, envs] * (1 - buffer.timeouts[inds, envs])).reshape(-1, 1),
+        buffer.rewards[inds, envs, :],
+    )
+    assert np.random.random() == after  # the same random numbers were drawn
+    for array, reference in zip(found, expected, strict=True):
+        assert array.dtype == reference.dtype
+        np.testing.assert_array_equal(array, reference)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Policies and SFDQN
+# --------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("policy", ["MlpPolicy", "TabularPolicy"])
+def test_set_training_mode_sets_the_flags_module_train_sets(policy):
+    model = SFDQN(policy, Fig1MOMDP(), seed=0, learning_starts=0)
+    reference = copy.deepcopy(model.policy)
+    for mode in (True, False, False, True, False):
+        model.policy.set_training_mode(mode)
+        reference.sf_net.train(mode)
+        reference.training = mode
+        flags = [m.training for m in model.policy.modules()]
+        assert flags == [m.training for m in reference.modules()]
+
+
+def test_set_training_mode_calls_overridden_train_methods():
+    calls = []
+
+    class Recording(nn.Identity):
+        def train(self, mode: bool = True):
+            calls.append(mode)
+            return super().train(mode)
+
+    model = SFDQN("MlpPolicy", Fig1MOMDP(), seed=0)
+    model.policy.sf_net.sf_net.append(Recording())
+    model.policy.__dict__.pop("_mode_modules", None)  # a network changed after its first use: start afresh
+    for mode in (False, True, True, False):
+        model.policy.set_training_mode(mode)
+    assert calls == [False, True, False]  # a call that changes nothing is skipped
+
+
+def test_store_transition_stores_what_sb3_stores():
+    ours = SFDQN("TabularPolicy", Fig1MOMDP(), seed=0, learning_starts=0, buffer_size=100)
+    sb3 = copy.deepcopy(ours)
+    ours.learn(1)
+    sb3.learn(1)
+    rng = np.random.default_rng(0)
+    for step in range(30):
+        new_obs = rng.integers(0, 4, size=(1, *ours.observation_space.shape))
+        done = np.array([step % 7 == 6])
+        infos = [{"terminal_observation": np.array(3), "TimeLimit.truncated": False} if done[0] else {}]
+        action, reward = np.array([[step % 3]]), rng.random((1, 2)).astype(np.float32)
+        kept = new_obs.copy()
+        ours._store_transition(ours.replay_buffer, action, new_obs, reward, done, infos)
+        OffPolicyAlgorithm._store_transition(sb3, sb3.replay_buffer, action, new_obs.copy(), reward, done, infos)
+        np.testing.assert_array_equal(new_obs, kept)  # not modified
+        assert ours._last_obs is new_obs
+    for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
+        np.testing.assert_array_equal(getattr(ours.replay_buffer, name), getattr(sb3.replay_buffer, name))
