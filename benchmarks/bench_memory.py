@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import gc
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -104,7 +105,7 @@ def child_policy_set(kind: str, n_policies: int) -> dict:
     return {"rss": rss_bytes() - before, "nbytes": params}
 
 
-def _measure(args: list[str], repeats: int) -> dict:
+def _measure(args: list[str], repeats: int, env: dict[str, str] | None = None) -> dict:
     root = Path(__file__).resolve().parents[1]
     results = []
     for _ in range(repeats):
@@ -114,18 +115,29 @@ def _measure(args: list[str], repeats: int) -> dict:
             capture_output=True,
             text=True,
             check=True,
+            env=None if env is None else {**os.environ, **env},
         )
         results.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    if "results" in results[0]:
+        return results[0]
     return {"rss": statistics.median(r["rss"] for r in results), "nbytes": results[0]["nbytes"]}
 
 
 def run(quick: bool = False) -> list[Row]:
     repeats = 1 if quick else 3
     rows = []
+    # --quick measures the eight buffers one after the other in one process, each freed before the next. glibc
+    # raises its mmap threshold after freeing a mapped block, and later arrays under 32 MB would then come from the
+    # heap, already resident: the fixed threshold keeps every array in its own mapping, as in a fresh process.
+    # The full run gives each buffer its own fresh processes.
+    batch = _measure(["buffers"], 1, {"MALLOC_MMAP_THRESHOLD_": "131072"})["results"] if quick else None
     for label, kind, d, n_actions in BUFFERS:
         for optimize in (False, True):
-            ours = _measure(["buffer", kind, str(d), str(n_actions), "mo", str(int(optimize))], repeats)
-            sb3 = _measure(["buffer", kind, str(d), str(n_actions), "sb3", str(int(optimize))], repeats)
+            if batch is not None:
+                ours, sb3 = batch[f"{kind}-mo-{int(optimize)}"], batch[f"{kind}-sb3-{int(optimize)}"]
+            else:
+                ours = _measure(["buffer", kind, str(d), str(n_actions), "mo", str(int(optimize))], repeats)
+                sb3 = _measure(["buffer", kind, str(d), str(n_actions), "sb3", str(int(optimize))], repeats)
             rows.append(
                 Row(
                     "memory",
@@ -157,6 +169,15 @@ def run(quick: bool = False) -> list[Row]:
 
 
 def _child(argv: list[str]) -> None:
+    if argv[0] == "buffers":
+        results = {}
+        for _, kind, d, n_actions in BUFFERS:
+            for optimize in (False, True):
+                for which in ("mo", "sb3"):
+                    results[f"{kind}-{which}-{int(optimize)}"] = child_buffer(kind, d, n_actions, which, optimize)
+                    gc.collect()
+        print(json.dumps({"results": results}))
+        return
     if argv[0] == "buffer":
         kind, d, n_actions, which, optimize = argv[1:]
         result = child_buffer(kind, int(d), int(n_actions), which, bool(int(optimize)))

@@ -40,16 +40,31 @@ def traffic() -> dict[str, Any]:
     """
     The paper's three-intersection SUMO scenario with pedestrians (Sec. 5.2): an MLP SFDQN per traffic light.
 
-    Budget: ``iterations x steps_per_iteration`` joint steps (5 simulated seconds each) per agent, plus after
-    every iteration one value episode and a GPI episode for each of the 25 test weights (in ``eval_workers``
-    processes) -- about a quarter of an hour on two cores. Rewards are scaled by 0.02 (per-step changes of
-    waiting time are tens of seconds); episode metrics stay in seconds.
+    Budget: up to ``iterations x steps_per_iteration`` joint steps (5 simulated seconds each) per agent, plus
+    after every iteration one value episode per new policy and a GPI episode for each of the 25 test weights
+    (in ``eval_workers`` processes): about 10-15 minutes on two cores.
+
+    Rewards are scaled per objective, vehicles x 0.01 and pedestrians x 0.25. The per-step changes of waiting
+    time are tens of seconds (networks train better on rewards of order one), and the factor 25 between the
+    objectives sets what a weight trades: in seconds, serving pedestrians costs the (many more) vehicles about
+    35 times what the pedestrians gain (short 10 s cycles are nearly optimal for both), so every weight with
+    ``w_ped < 0.97`` would have the same best policy; with the factor 25 the knee of the front is near the
+    middle of the simplex. Episode metrics and infos stay in seconds.
+
+    Values are estimated with each new policy run at all three intersections (``value_mode="shared"``) and GPI
+    acts over the policies whose values form the CCS (``gpi_set="ccs"``): dominated policies' SFs only mislead it.
     """
     from sfgpi_envs.traffic import TrafficSignalEnv
 
     return {
         "make_env": TrafficSignalEnv,
-        "env_kwargs": {"num_seconds": 500, "delta_time": 5, "min_green": 10, "max_green": 50, "reward_scale": 0.02},
+        "env_kwargs": {
+            "num_seconds": 500,
+            "delta_time": 5,
+            "min_green": 10,
+            "max_green": 50,
+            "reward_scale": [0.01, 0.25],  # vehicles, pedestrians: see above
+        },
         "learner_kwargs": {
             "policy": "MlpPolicy",
             "learning_rate": 1e-3,
@@ -64,11 +79,12 @@ def traffic() -> dict[str, Any]:
             "exploration_final_eps": 0.05,
             "policy_kwargs": {"net_arch": [64, 64]},
         },
-        "steps_per_iteration": 2_500,
+        "steps_per_iteration": 4_000,
         "iterations": 6,
         "n_test_weights": 25,
         "value_episodes": 1,
         "value_mode": "shared",  # each new policy run at all three intersections: values comparable across agents
+        "gpi_set": "ccs",  # GPI over the policies whose values form the CCS: dominated SFs only mislead it
         "eval_episodes": 1,
         "eval_workers": 2,
         # for `sb3-sfgpi compare` and its plots

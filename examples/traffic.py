@@ -58,23 +58,27 @@ def checks(compare: dict) -> list[tuple[str, bool, str]]:
         return row["episode_metrics"][key]["mean"]
 
     results = []
-    order = sorted(gpi, key=lambda w: w[1])  # increasing pedestrian weight
-    peds = [metric(gpi[w], ped) for w in order]
-    vehs = [metric(gpi[w], veh) for w in order]
-    results.append(
-        (
-            "pedestrian waiting decreases as the pedestrian weight w1 grows",
-            bool(np.all(np.diff(peds) <= 0)),
-            ", ".join(f"w1={w[1]:g}: {p:.2f}" for w, p in zip(order, peds, strict=True)),
+    for weights, strict in (([(1.0, 0.0), (0.5, 0.5), (0.0, 1.0)], True), (sorted(gpi, key=lambda w: w[1]), False)):
+        order = [w for w in weights if w in gpi]  # increasing pedestrian weight
+        if len(order) < 2:
+            continue
+        peds = [metric(gpi[w], ped) for w in order]
+        vehs = [metric(gpi[w], veh) for w in order]
+        scope = "w in {[1,0], [0.5,0.5], [0,1]}" if strict else f"all {len(order)} weights (noise: 1 std ≈ 0.5 s)"
+        results.append(
+            (
+                f"GPI pedestrian waiting decreases as w1 grows, {scope}",
+                bool(np.all(np.diff(peds) < 0)),
+                ", ".join(f"w1={w[1]:g}: {p:.2f}" for w, p in zip(order, peds, strict=True)),
+            )
         )
-    )
-    results.append(
-        (
-            "vehicle waiting increases as the pedestrian weight w1 grows",
-            bool(np.all(np.diff(vehs) >= 0)),
-            ", ".join(f"w1={w[1]:g}: {v:.2f}" for w, v in zip(order, vehs, strict=True)),
+        results.append(
+            (
+                f"GPI vehicle waiting increases as w1 grows, {scope}",
+                bool(np.all(np.diff(vehs) > 0)),
+                ", ".join(f"w1={w[1]:g}: {v:.2f}" for w, v in zip(order, vehs, strict=True)),
+            )
         )
-    )
     if "fixed-time" in baseline:
         fixed_time = baseline["fixed-time"]
         for w, key, name in (((1.0, 0.0), veh, "vehicles"), ((0.0, 1.0), ped, "pedestrians")):
@@ -131,6 +135,41 @@ def env_speed(episodes: int = 3, seed: int = 0) -> float:
     return simulated / (time.perf_counter() - start)
 
 
+def evaluation_speed(run_dir: Path, workers: int = 2) -> dict[str, float]:
+    """Wall seconds of GPI on the run's 25 test weights (one episode each, its training seeds), in this process
+    and in ``workers`` worker processes (pool started beforehand); checks that the returns are identical."""
+    import time
+
+    from sb3_sfgpi.common.evaluation import EvaluationJob, ParallelEvaluator, run_job
+    from sb3_sfgpi.common.weights import random_weights
+    from sb3_sfgpi.multiagent import derive_seed
+
+    config = json.loads((run_dir / "run.json").read_text())
+    domain = load_domain("traffic")
+    gamma = config["learner_kwargs"]["gamma"]
+    weights = random_weights(2, config["n_test_weights"], rng=0)
+    jobs = [
+        EvaluationJob(derive_seed(config["seed"], "eval", i), tuple(w), 1, str(run_dir / "policy_set"),
+                      ccs_only=config.get("gpi_set") == "ccs")
+        for i, w in enumerate(weights)
+    ]  # fmt: skip
+    start = time.perf_counter()
+    env = domain["make_env"](**config["env_kwargs"])
+    try:
+        in_process = [run_job(env, job, gamma) for job in jobs]
+    finally:
+        env.close()
+    seconds = {"in-process": time.perf_counter() - start}
+    with ParallelEvaluator(domain["make_env"], config["env_kwargs"], workers, gamma) as evaluator:
+        evaluator.run(jobs[:workers])  # start the pool
+        start = time.perf_counter()
+        parallel = evaluator.run(jobs)
+        seconds[f"{workers} workers"] = time.perf_counter() - start
+    for a, b in zip(in_process, parallel, strict=True):
+        assert all(np.array_equal(a.discounted[k], b.discounted[k]) for k in a.discounted), "results differ"
+    return seconds
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     domain = load_domain("traffic")
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -145,7 +184,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--no-fixed", action="store_true", help="skip the scalarised learners")
     parser.add_argument("--episodes", type=int, default=5, help="evaluation episodes per method in the comparison")
     parser.add_argument("--eval-workers", type=int, default=domain["eval_workers"], help="evaluation processes")
-    parser.add_argument("--speed", action="store_true", help="only measure the env's simulated seconds per second")
+    parser.add_argument(
+        "--speed",
+        action="store_true",
+        help="only measure the env's simulated seconds per second and, if the first seed's MA-SFOLS run exists, "
+        "the time of its GPI evaluation in-process and in --eval-workers processes",
+    )
     args = parser.parse_args(argv)
     args.fixed_weights = [] if args.no_fixed else (args.fixed_weights or domain["fixed_weights"])
     return args
@@ -160,7 +204,8 @@ def run(args: argparse.Namespace) -> list[tuple[str, bool, str]]:
     seed = args.seeds[0]
     fixed = [args.out / f"fixed-w{_tag(w)}-s{seed}" for w in args.fixed_weights]
     for w, out in zip(args.fixed_weights, fixed, strict=True):
-        _train(out, ["train", "traffic", *common, "--seed", str(seed), "--algo", "fixed", "--w", *map(str, w)])
+        fixed_argv = ["train", "traffic", *common, "--seed", str(seed), "--algo", "fixed", "--w", *map(str, w)]
+        _train(out, [*fixed_argv, "--budget-from", str(masfols[0])])  # the steps per agent MA-SFOLS took
 
     compare_file = args.out / "compare.json"
     argv = ["compare", str(masfols[0]), "--episodes", str(args.episodes), "--workers", str(max(args.eval_workers, 1))]
@@ -185,5 +230,10 @@ if __name__ == "__main__":  # the evaluation workers are spawned: they re-import
     arguments = parse_args()
     if arguments.speed:
         print(f"traffic env: {env_speed():.0f} simulated seconds per second (random actions, 3 episodes of 500 s)")
+        run_dir = arguments.out / f"ma-sfols-s{arguments.seeds[0]}"
+        if (run_dir / "checkpoint.json").exists():
+            timing = evaluation_speed(run_dir, max(arguments.eval_workers, 1))
+            print(f"GPI on the test weights of {run_dir}: " + ", ".join(f"{k} {v:.1f} s" for k, v in timing.items())
+                  + " (identical returns)")
     else:
         run(arguments)

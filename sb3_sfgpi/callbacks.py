@@ -46,6 +46,7 @@ from sb3_sfgpi.common.evaluation import (
     EvaluationJob,
     ParallelEvaluator,
     agent_policy_sets,
+    ccs_subset,
     expected_utility,
     gpi_joint_policy,
     hypervolume,
@@ -59,6 +60,7 @@ from sb3_sfgpi.ols import OLS
 
 ALGORITHMS = ("ma-sfols", "random", "fixed")
 EVAL_POLICIES = ("shared", "own")
+GPI_SETS = ("all", "ccs")
 VALUE_MODES = ("joint", "shared")
 CHECKPOINT = "checkpoint.json"
 SUMMARY_FIELDS = (
@@ -101,6 +103,8 @@ class OLSCallback(BaseCallback):
     :param fixed_weights: the weights of ``algorithm="fixed"`` (required by it, refused otherwise)
     :param eval_policies: ``"shared"``: every agent acts by GPI over the whole Π; ``"own"``: each agent over
         the policies it learned itself (the evaluation of independent fixed-weight learners)
+    :param gpi_set: the policies GPI is evaluated over: ``"all"`` of Π, or only those whose values form Π's CCS
+        (``"ccs"``, see :func:`~sb3_sfgpi.common.evaluation.ccs_subset`)
     :param eval_workers: 0: evaluate GPI in this process on the training env; ``n > 0``: in ``n`` worker
         processes (kept for the whole run), each with its own env
     :param eval_env_fn: picklable env constructor of the workers (required when ``eval_workers > 0``)
@@ -127,6 +131,7 @@ class OLSCallback(BaseCallback):
         verbose: int = 0,
         fixed_weights: np.ndarray | list[float] | None = None,
         eval_policies: str = "shared",
+        gpi_set: str = "all",
         eval_workers: int = 0,
         eval_env_fn: Callable[..., Any] | None = None,
         eval_env_kwargs: Mapping[str, Any] | None = None,
@@ -138,6 +143,8 @@ class OLSCallback(BaseCallback):
             raise ValueError('fixed_weights are required by algorithm="fixed" and only by it')
         if value_mode not in VALUE_MODES:
             raise ValueError(f"value_mode must be one of {VALUE_MODES}, got {value_mode!r}")
+        if gpi_set not in GPI_SETS:
+            raise ValueError(f"gpi_set must be one of {GPI_SETS}, got {gpi_set!r}")
         if eval_policies not in EVAL_POLICIES:
             raise ValueError(f"eval_policies must be one of {EVAL_POLICIES}, got {eval_policies!r}")
         if isinstance(eval_workers, bool) or not isinstance(eval_workers, int) or eval_workers < 0:
@@ -163,6 +170,7 @@ class OLSCallback(BaseCallback):
         self.progress_bar = progress_bar
         self.fixed_weights = None if fixed_weights is None else np.asarray(fixed_weights, dtype=np.float64)
         self.eval_policies = eval_policies
+        self.gpi_set = gpi_set
         self.eval_workers = eval_workers
         self.eval_env_fn = eval_env_fn
         self.eval_env_kwargs = dict(eval_env_kwargs or {})
@@ -315,6 +323,7 @@ class OLSCallback(BaseCallback):
         runner = self.model
         seeds = [derive_seed(runner.seed, "eval", i) for i in range(len(self.test_weights))]
         own = self.eval_policies == "own"
+        ccs_only = self.gpi_set == "ccs" and not own
         if self.eval_workers > 0:
             if self._evaluator is None:
                 assert self.eval_env_fn is not None
@@ -323,15 +332,16 @@ class OLSCallback(BaseCallback):
                 )
             policy_dir = str(self._policy_dir())
             jobs = [
-                EvaluationJob(seed, tuple(w), self.eval_episodes, policy_dir, own_policies=own)
+                EvaluationJob(seed, tuple(w), self.eval_episodes, policy_dir, own_policies=own, ccs_only=ccs_only)
                 for w, seed in zip(self.test_weights, seeds, strict=True)
             ]
             return self._evaluator.run(jobs)
-        own_sets = agent_policy_sets(self.policy_set, runner.agents) if own else None
+        policy_set = ccs_subset(self.policy_set) if ccs_only else self.policy_set
+        own_sets = agent_policy_sets(policy_set, runner.agents) if own else None
         results = []
         bar = tqdm(self.test_weights, desc="evaluating GPI", unit="w", leave=False, disable=not self.progress_bar)
         for w, seed in zip(bar, seeds, strict=True):
-            act = gpi_joint_policy(self.policy_set, w, own_sets)
+            act = gpi_joint_policy(policy_set, w, own_sets)
             results.append(run_episodes(runner.env, act, self.eval_episodes, runner.gamma, seed=seed))
         return results
 

@@ -14,7 +14,7 @@ environments.
 ``compare`` writes a comparison file (JSON)::
 
     {"format": "sb3-sfgpi/compare", "version": 1, "domain", "run_dir", "env_kwargs", "gamma", "episodes",
-     "seed", "objectives", "episode_metrics", "step_metrics",
+     "seed", "gpi_set", "objectives", "episode_metrics", "step_metrics",
      "rows": [{"method": "gpi" | "fixed" | "baseline", "label", "run_dir", "weights" (null for baselines),
                "return_discounted", "return_undiscounted" (mean over agents and episodes),
                "scalarized_discounted" (w · return_discounted, null for baselines),
@@ -84,6 +84,13 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "scratch (a priori scalarisation), in one iteration of iterations x steps-per-iteration steps",
     )
     train.add_argument("--w", type=float, nargs="+", help="the preference weights of --algo fixed")
+    train.add_argument(
+        "--budget-from",
+        type=Path,
+        metavar="RUN",
+        help="--algo fixed: train as many steps per agent as the run in RUN did (e.g. an MA-SFOLS run that OLS "
+        "ended before its iteration cap)",
+    )
     train.add_argument("--iterations", type=int, help="maximum number of iterations (default: the domain's)")
     train.add_argument("--steps-per-iteration", type=int, help="joint env steps per iteration (default: the domain's)")
     train.add_argument("--seed", type=int, default=0)
@@ -119,6 +126,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     evaluate.add_argument("--w", type=float, nargs="+", required=True, help="preference weights, one per objective")
     evaluate.add_argument("--episodes", type=int, default=1)
     evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--gpi-set", choices=["all", "ccs"], help="GPI over all of Π or its CCS (default: the run's)")
 
     compare = sub.add_parser(
         "compare",
@@ -134,6 +142,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="weights GPI is evaluated at (repeat the option; default: the domain's; the --fixed runs' are added)",
     )
     compare.add_argument("--no-baselines", action="store_true", help="skip the domain's baselines")
+    compare.add_argument("--gpi-set", choices=["all", "ccs"], help="GPI over all of Π or its CCS (default: the run's)")
     compare.add_argument("--episodes", type=int, default=3, help="episodes per method (seeds seed, seed+1, ...)")
     compare.add_argument("--seed", type=int, default=1000)
     compare.add_argument("--workers", type=int, help="worker processes (0: in this process; default: the domain's)")
@@ -149,6 +158,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "-o", "--output", type=Path, required=True, help="PNG file (returns, tradeoff) or directory (steps, versus)"
     )
     plot.add_argument("--kind", choices=PLOT_KINDS, default="returns")
+    plot.add_argument(
+        "--smooth", type=int, default=10, help="steps, versus: moving average over this many steps (1: raw curves)"
+    )
     plot.add_argument(
         "--metric",
         default="mean_return",
@@ -205,8 +217,8 @@ def _train(args: argparse.Namespace) -> int:
         if args.w is None:
             raise UsageError("--algo fixed needs the preference weights --w")
         fixed_weights = _check_weights(args.w, "--w")
-    elif args.w is not None:
-        raise UsageError("--w is only for --algo fixed")
+    elif args.w is not None or args.budget_from is not None:
+        raise UsageError("--w and --budget-from are only for --algo fixed")
     default_name = f"{args.domain}-{args.algo}" + (f"-w{_tag(fixed_weights)}" if fixed_weights else "")
     out: Path = args.out or Path("runs") / f"{default_name}-s{args.seed}"
     config = {
@@ -221,16 +233,20 @@ def _train(args: argparse.Namespace) -> int:
         "n_test_weights": n_test_weights,
         "value_episodes": domain["value_episodes"],
         "value_mode": domain.get("value_mode", "joint"),
+        "gpi_set": domain.get("gpi_set", "all"),
         "eval_episodes": domain["eval_episodes"],
     }
     if fixed_weights is not None:
         # The same number of steps per agent as an MA-SFOLS run of `iterations` iterations, in one iteration.
-        config.update(
-            iterations=1,
-            steps_per_iteration=iterations * steps_per_iteration,
-            fixed_weights=fixed_weights,
-            budget={"iterations": iterations, "steps_per_iteration": steps_per_iteration},
-        )
+        budget: dict[str, Any] = {"iterations": iterations, "steps_per_iteration": steps_per_iteration}
+        steps = iterations * steps_per_iteration
+        if args.budget_from is not None:
+            checkpoint = args.budget_from / CHECKPOINT
+            if not checkpoint.exists():
+                raise UsageError(f"--budget-from: {args.budget_from} has no checkpoint")
+            steps = int(read_json(checkpoint, "checkpoint")["timesteps"])
+            budget = {"from": str(args.budget_from), "timesteps": steps}
+        config.update(iterations=1, steps_per_iteration=steps, fixed_weights=fixed_weights, budget=budget)
     if args.resume:
         if not (out / RUN_FILE).exists():
             raise UsageError(f"--resume: {out} is not a run directory (no {RUN_FILE})")
@@ -280,6 +296,7 @@ def _train(args: argparse.Namespace) -> int:
         verbose=1,
         fixed_weights=fixed,
         eval_policies="own" if fixed else "shared",
+        gpi_set=config.get("gpi_set", "all"),
         eval_workers=eval_workers,
         eval_env_fn=domain["make_env"] if eval_workers else None,
         eval_env_kwargs=config["env_kwargs"],
@@ -345,12 +362,14 @@ def _read_run(run_dir: Path) -> dict[str, Any]:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from sb3_sfgpi.common.evaluation import gpi_joint_policy, run_episodes
+    from sb3_sfgpi.common.evaluation import ccs_subset, gpi_joint_policy, run_episodes
     from sb3_sfgpi.common.weights import validate_weights
     from sb3_sfgpi.gpi import GPIPolicy
 
     config = _read_run(args.run_dir)
     policy_set = GPIPolicy.load(args.run_dir / "policy_set")
+    if (args.gpi_set or config.get("gpi_set", "all")) == "ccs":
+        policy_set = ccs_subset(policy_set)
     w = validate_weights(args.w, policy_set.reward_dim, "--w")
     if args.episodes < 1:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
@@ -361,7 +380,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         result = run_episodes(env, gpi_joint_policy(policy_set, w), args.episodes, gamma, seed=args.seed)
     finally:
         env.close()
-    print(f"GPI over {len(policy_set)} policies, w={np.round(w, 4).tolist()}, {args.episodes} episode(s)")
+    which = args.gpi_set or config.get("gpi_set", "all")
+    print(f"GPI over {len(policy_set)} policies ({which}), w={np.round(w, 4).tolist()}, {args.episodes} episode(s)")
     for agent in result.discounted:
         disc, total = result.mean_discounted(agent), result.mean_undiscounted(agent)
         print(
@@ -424,6 +444,7 @@ def _compare(args: argparse.Namespace) -> int:
         raise UsageError(f"--workers must be 0 or more, got {workers}")
     gamma = config["learner_kwargs"].get("gamma", 0.99)
     env_kwargs = config["env_kwargs"]
+    gpi_set = args.gpi_set or config.get("gpi_set", "all")
     n_objectives = len(domain.get("objectives") or [])
     compare: dict[str, Any] = {
         "format": COMPARE_FORMAT,
@@ -434,6 +455,7 @@ def _compare(args: argparse.Namespace) -> int:
         "gamma": gamma,
         "episodes": args.episodes,
         "seed": args.seed,
+        "gpi_set": gpi_set,
         "objectives": domain.get("objectives"),
         "episode_metrics": domain.get("episode_metrics", []),
         "step_metrics": domain.get("step_metrics", []),
@@ -467,7 +489,7 @@ def _compare(args: argparse.Namespace) -> int:
 
     for w in weights:
         header = {"method": "gpi", "label": f"GPI w={_format(w)}", "run_dir": str(args.run_dir)}
-        planned.append((header, job(w, args.run_dir / "policy_set")))
+        planned.append((header, job(w, args.run_dir / "policy_set", ccs_only=gpi_set == "ccs")))
     for run_dir, fixed in fixed_runs:
         w = fixed["fixed_weights"]
         header = {"method": "fixed", "label": f"scalarized w={_format(w)}", "run_dir": str(run_dir)}
@@ -558,9 +580,11 @@ def _plot(args: argparse.Namespace) -> int:
         compare = read_json(path, "comparison")
         if not isinstance(compare, dict) or compare.get("format") != COMPARE_FORMAT:
             raise UsageError(f"{path} is not a comparison file (written by sb3-sfgpi compare)")
+        if args.smooth < 1:
+            raise UsageError(f"--smooth must be positive, got {args.smooth}")
         draw: dict[str, Callable[[dict[str, Any], Path], Any]] = {
-            "steps": plots.plot_step_metrics,
-            "versus": plots.plot_versus,
+            "steps": lambda c, o: plots.plot_step_metrics(c, o, smooth=args.smooth),
+            "versus": lambda c, o: plots.plot_versus(c, o, smooth=args.smooth),
             "tradeoff": plots.plot_tradeoff,
         }
         result = draw[args.kind](compare, args.output)

@@ -18,6 +18,7 @@ from sb3_sfgpi.cli import main  # noqa: E402
 from sb3_sfgpi.common.evaluation import (  # noqa: E402
     EvaluationJob,
     ParallelEvaluator,
+    ccs_subset,
     evaluate_gpi_parallel,
     run_job,
 )
@@ -83,6 +84,34 @@ def test_parallel_evaluation_equals_in_process(tmp_path):
     assert program_parallel.final_infos[0]["J1"]["episode"] == run_program_episode("actuated", seed=9, **ENV_KWARGS)
 
 
+def test_reward_scale_per_objective():
+    rewards = {}
+    for scale in (1.0, (0.5, 2.0)):
+        env = TrafficSignalEnv(num_seconds=200, reward_scale=scale)  # pedestrians reach J1 after ~2 minutes
+        env.reset(seed=3)
+        rewards[scale] = [env.step({a: int(k % 4 == 0) for a in env.agents})[1]["J1"] for k in range(40)]
+        metrics = env.episode_metrics()
+        env.close()
+    raw = np.array(rewards[1.0])
+    assert np.abs(raw).sum(axis=0).min() > 0  # both objectives moved
+    np.testing.assert_allclose(np.array(rewards[(0.5, 2.0)]), raw * [0.5, 2.0], rtol=1e-6)
+    assert metrics["vehicle_waiting_time_total"] >= 0  # metrics stay in seconds
+    for bad in (0.0, -1.0, float("nan"), (1.0,), (1.0, 0.0), True):
+        with pytest.raises(ValueError, match="reward_scale"):
+            TrafficSignalEnv(reward_scale=bad)
+
+
+def test_ccs_subset_keeps_the_undominated_policies(tmp_path):
+    policy_set = _random_policy_set(tmp_path)  # 6 policies; give them values: 2 on the CCS, 1 duplicate, 3 dominated
+    values = [[-1.0, -5.0], [-3.0, -3.0], [-5.0, -1.0], [-5.0, -1.0], [-6.0, -6.0], [-4.0, -4.0]]
+    for i, value in enumerate(values):
+        policy_set.infos[i] = policy_set.infos[i].__class__(policy_set.infos[i].weights, np.array(value), "J1", i)
+    subset = ccs_subset(policy_set)
+    assert [info.iteration for info in subset.infos] == [0, 2]  # [-3, -3] is below the segment of the others
+    obs = np.zeros((1, 15), dtype=np.float32)
+    np.testing.assert_array_equal(subset.successor_features(obs), policy_set.successor_features(obs)[[0, 2]])
+
+
 def _evaluation(run_dir):
     """evaluation.json without the wall-clock times."""
     rows = json.loads((run_dir / "evaluation.json").read_text())
@@ -137,8 +166,12 @@ def test_fixed_weight_learners_compare_and_plots(tmp_path):
     assert main(["train", "traffic", *TINY, "--eval-workers", "0", "--out", str(masfols)]) == 0
     assert main(["train", "traffic", *TINY, "--algo", "fixed", "--w", "0.4", "0.6", "--out", str(fixed)]) == 0
     config = json.loads((fixed / "run.json").read_text())
-    # the same steps per agent as the MA-SFOLS run, in one iteration
+    # the same steps per agent as an MA-SFOLS run of this budget, in one iteration
     assert (config["iterations"], config["steps_per_iteration"], config["fixed_weights"]) == (1, 32, [0.4, 0.6])
+    taken = json.loads((masfols / "checkpoint.json").read_text())["timesteps"]  # OLS may end before the cap
+    budget = ["--budget-from", str(masfols), "--out", str(tmp_path / "budget"), "--iterations", "1"]
+    assert main(["train", "traffic", "--algo", "fixed", "--w", "1", "0", *budget, "--steps-per-iteration", "1"]) == 0
+    assert json.loads((tmp_path / "budget" / "run.json").read_text())["steps_per_iteration"] == taken
     policy_set = GPIPolicy.load(fixed / "policy_set")
     assert [info.agent for info in policy_set.infos] == ["J1", "J2", "J3"]
     assert all(np.allclose(info.weights, [0.4, 0.6]) for info in policy_set.infos)

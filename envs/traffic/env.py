@@ -74,6 +74,20 @@ def _check_int(name: str, value: Any, low: int) -> int:
     return int(value)
 
 
+def _check_scale(value: Any) -> tuple[float, float]:
+    """``reward_scale`` as one positive finite factor per objective."""
+    values = list(value) if isinstance(value, (list, tuple, np.ndarray)) else [value] * REWARD_DIM
+    ok = len(values) == REWARD_DIM and all(
+        not isinstance(v, bool) and isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0 for v in values
+    )
+    if not ok:
+        raise ValueError(
+            f"reward_scale must be a positive finite number or {REWARD_DIM} of them (vehicles, pedestrians), "
+            f"got {value!r}"
+        )
+    return float(values[0]), float(values[1])
+
+
 class TrafficSignalEnv(ParallelEnv):
     """Traffic lights with vehicles and pedestrians, one keep/change agent per light, vector rewards.
 
@@ -93,7 +107,7 @@ class TrafficSignalEnv(ParallelEnv):
     yellow state for ``yellow_time`` seconds, during which actions are ignored.
 
     Rewards: ``float32`` arrays of shape ``(2,)`` (vehicles, pedestrians), in seconds times
-    ``reward_scale``.
+    ``reward_scale`` (per objective).
 
     Infos (every step, per agent): ``vehicle_wait_total`` (``W^v``), ``vehicle_wait_mean`` (per
     incoming vehicle), ``pedestrian_wait_total`` (``W^p``), ``pedestrian_wait_mean`` (per person on
@@ -122,9 +136,11 @@ class TrafficSignalEnv(ParallelEnv):
     :param additional_files: further SUMO additional files.
     :param sumo_args: further SUMO command-line options.
     :param sumo_warnings: let SUMO print its warnings (e.g. jammed pedestrians).
-    :param reward_scale: factor applied to both reward components (default 1: seconds). Learners with
-        neural networks train better on rewards of order one (the per-step changes are tens of seconds);
-        infos and :meth:`episode_metrics` stay in seconds.
+    :param reward_scale: factor applied to the rewards: one number for both components, or one per
+        component ``(vehicles, pedestrians)``; default 1 (seconds). Learners with neural networks train
+        better on rewards of order one (the per-step changes are tens of seconds), and per-objective factors
+        set the units the preference weights trade (see the ``traffic`` domain preset). Infos and
+        :meth:`episode_metrics` stay in seconds.
     :param render_mode: ``None`` or ``"human"`` (the latter implies ``gui=True``).
     :raises ValueError: for invalid arguments, or an invalid network file (message names the file).
     :raises FileNotFoundError: if the network or route file does not exist.
@@ -151,7 +167,7 @@ class TrafficSignalEnv(ParallelEnv):
         additional_files: Sequence[str | os.PathLike[str]] = (),
         sumo_args: Sequence[str] = (),
         sumo_warnings: bool = False,
-        reward_scale: float = 1.0,
+        reward_scale: float | Sequence[float] = 1.0,
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
@@ -166,11 +182,7 @@ class TrafficSignalEnv(ParallelEnv):
         self.max_green = _check_int("max_green", max_green, 1)
         if self.min_green > self.max_green:
             raise ValueError(f"min_green ({min_green}) must not exceed max_green ({max_green})")
-        if isinstance(reward_scale, bool) or not isinstance(reward_scale, (int, float, np.number)) or not (
-            np.isfinite(reward_scale) and reward_scale > 0
-        ):
-            raise ValueError(f"reward_scale must be a positive finite number, got {reward_scale!r}")
-        self.reward_scale = float(reward_scale)
+        self.reward_scale = _check_scale(reward_scale)
         self.signal_control = signal_control
         self.render_mode = render_mode
         gui = gui or render_mode == "human"
@@ -397,10 +409,10 @@ class TrafficSignalEnv(ParallelEnv):
         except self._sim.errors as exc:
             self._died(exc)
         rewards = {}
-        scale = self.reward_scale
+        scale_v, scale_p = self.reward_scale
         for i, a in enumerate(agents):
             prev, cur = self._last[i], measures[i]
-            rewards[a] = np.array(((prev[0] - cur[0]) * scale, (prev[2] - cur[2]) * scale), dtype=np.float32)
+            rewards[a] = np.array(((prev[0] - cur[0]) * scale_v, (prev[2] - cur[2]) * scale_p), dtype=np.float32)
         self._last = measures
         done = time >= self.num_seconds
         terminations = dict.fromkeys(agents, False)

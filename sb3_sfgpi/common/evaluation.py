@@ -15,6 +15,9 @@ from __future__ import annotations
 
 import multiprocessing
 import numbers
+import os
+import threading
+import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -191,6 +194,38 @@ def agent_policy_sets(policy_set: GPIPolicy, agents: Sequence[str]) -> dict[str,
     return subsets
 
 
+def ccs_subset(policy_set: GPIPolicy, tolerance: float = 1e-6) -> GPIPolicy:
+    """
+    The policies of the set whose value vectors ``V^π`` form its convex coverage set (CCS): those that are the
+    best of the set, by more than ``tolerance``, for some weight (computed by :class:`~sb3_sfgpi.ols.OLS` from
+    the values stored in the set; of policies with the same value the first is kept). GPI over this subset
+    ignores dominated policies, whose learned SFs can only mislead it where they overestimate.
+
+    :param policy_set: a set whose policies carry their values (policies without one are left out)
+    :return: a new set holding the CCS policies, in their order in ``policy_set``
+    :raises ValueError: no policy of the set has a value
+    """
+    from sb3_sfgpi.gpi import GPIPolicy
+    from sb3_sfgpi.ols import OLS
+
+    with_values = [i for i, info in enumerate(policy_set.infos) if info.value is not None]
+    if not with_values:
+        raise ValueError("the policies of the set carry no value vectors: their CCS is unknown")
+    ols = OLS(policy_set.reward_dim, tolerance=tolerance)
+    for i in with_values:
+        ols.add_solution(policy_set.infos[i].value, policy_set.infos[i].weights)
+    subset = GPIPolicy(device=policy_set.device)
+    kept: list[np.ndarray] = []
+    for i in with_values:
+        info = policy_set.infos[i]
+        value = np.asarray(info.value)
+        in_ccs = any(np.max(np.abs(value - v)) <= tolerance for v in ols.ccs)
+        if in_ccs and not any(np.max(np.abs(value - v)) <= tolerance for v in kept):
+            kept.append(value)
+            subset.add(policy_set.networks[i], info.weights, info.value, info.agent, info.iteration)
+    return subset
+
+
 def gpi_joint_policy(
     policy_set: GPIPolicy, w: np.ndarray | Sequence[float], own_sets: Mapping[str, GPIPolicy] | None = None
 ) -> JointPolicy:
@@ -231,6 +266,7 @@ class EvaluationJob:
     :param n_episodes: number of episodes
     :param policy_dir: the policy-set directory to act with (required with ``weights``; a worker loads it)
     :param own_policies: each agent acts by GPI over the policies it learned itself only
+    :param ccs_only: act by GPI over the policies of the set's CCS only (:func:`ccs_subset`)
     :param env_overrides: keyword arguments of the env replacing the evaluator's for this job
     :param record_infos: keep the per-step infos (:attr:`EpisodeReturns.step_infos`)
     """
@@ -242,6 +278,7 @@ class EvaluationJob:
     own_policies: bool = False
     env_overrides: tuple[tuple[str, Any], ...] = ()
     record_infos: bool = False
+    ccs_only: bool = False
 
     def __post_init__(self) -> None:
         if self.n_episodes < 1:
@@ -272,6 +309,8 @@ def run_job(
             from sb3_sfgpi.gpi import GPIPolicy
 
             policy_set = GPIPolicy.load(job.policy_dir)  # type: ignore[arg-type]
+        if job.ccs_only:
+            policy_set = ccs_subset(policy_set)
         own = agent_policy_sets(policy_set, env.possible_agents) if job.own_policies else None
         policy = gpi_joint_policy(policy_set, job.weights, own)
     return run_episodes(env, policy, job.n_episodes, gamma, seed=job.seed, record_infos=job.record_infos)
@@ -282,10 +321,20 @@ def run_job(
 _worker: dict[str, Any] = {}
 
 
-def _init_worker(env_fn: Callable[..., ParallelEnv], env_kwargs: dict[str, Any], gamma: float, threads: int) -> None:
+def _exit_with_parent(parent: int) -> None:
+    """Leave as soon as the parent process is gone (a killed parent would otherwise leave idle workers behind)."""
+    while os.getppid() == parent:
+        time.sleep(1.0)
+    os._exit(0)
+
+
+def _init_worker(
+    env_fn: Callable[..., ParallelEnv], env_kwargs: dict[str, Any], gamma: float, threads: int, parent: int
+) -> None:
     import torch as th
 
     th.set_num_threads(threads)
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True, name="exit-with-parent").start()
     _worker.clear()
     _worker.update(env_fn=env_fn, env_kwargs=dict(env_kwargs), gamma=gamma, env=None, env_key=None, sets={})
 
@@ -356,7 +405,7 @@ class ParallelEvaluator:
                 max_workers=self.workers,
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init_worker,
-                initargs=(self.env_fn, self.env_kwargs, self.gamma, self.threads),
+                initargs=(self.env_fn, self.env_kwargs, self.gamma, self.threads, os.getpid()),
             )
         return self._executor
 
@@ -403,6 +452,7 @@ def evaluate_gpi_parallel(
     own_policies: bool = False,
     record_infos: bool = False,
     evaluator: ParallelEvaluator | None = None,
+    ccs_only: bool = False,
 ) -> list[EpisodeReturns]:
     """
     GPI episodes for a list of weights, in parallel worker processes.
@@ -420,6 +470,7 @@ def evaluate_gpi_parallel(
     :param workers: number of processes (ignored when ``evaluator`` is given)
     :param own_policies: each agent acts by GPI over its own policies only
     :param record_infos: keep the per-step infos
+    :param ccs_only: act by GPI over the policies of the set's CCS only
     :param evaluator: an open evaluator to use (its env must be ``env_fn(**env_kwargs)``); default: a new pool,
         closed at the end
     :return: per weight, every agent's vector returns and final infos
@@ -427,7 +478,7 @@ def evaluate_gpi_parallel(
     if len(seeds) != len(weights):
         raise ValueError(f"one seed per weight: got {len(seeds)} seeds for {len(weights)} weights")
     jobs = [
-        EvaluationJob(int(seed), tuple(w), n_episodes, str(policy_dir), own_policies, (), record_infos)
+        EvaluationJob(int(seed), tuple(w), n_episodes, str(policy_dir), own_policies, (), record_infos, ccs_only)
         for w, seed in zip(weights, seeds, strict=True)
     ]
     if evaluator is not None:
