@@ -5,12 +5,13 @@ is the unique best value for the weight along it, so all ``n`` are in the CCS (`
 
 * **Corner weights**: ``OLS.corner_weights()`` (Qhull halfspace intersection, then deduplication) vs
   ``brute_force_corner_weights`` (one linear solve per ``d``-subset of the ``n + d`` hyperplanes:
-  ``C(n + d, d)`` solves). Both give the same corners (checked when both run). A side is not run when its
-  estimated time exceeds the budget; the table then gives the estimate (brute force: ``C(n + d, d)`` times the
-  measured time per subset; OLS: the deduplication's pairwise comparisons times their measured cost).
+  ``C(n + d, d)`` solves). Both give the same corners (checked when both run). The brute force is not run when
+  its estimated time (``C(n + d, d)`` times the measured time per subset) exceeds the budget; the table then
+  gives the estimate.
 * **OLS step**: one ``OLS.add_solution`` (corner weights, optimistic priority LPs of the new corners, coverage
-  LPs of the CCS members) for a new CCS value, the OLS already holding the ``n`` values and their ``n`` visited
-  weights: the cost of one MA-SFOLS iteration's bookkeeping at that size, with the time of each part.
+  LPs of the new value and of the CCS members whose witness weight it beats) for a new CCS value, the OLS
+  already holding the ``n`` values and their ``n`` visited weights: the cost of one MA-SFOLS iteration's
+  bookkeeping at that size, with the time of each part.
 """
 
 from __future__ import annotations
@@ -76,15 +77,6 @@ def _time(fn, repeats: int) -> float:
     return float(np.median(samples))
 
 
-def _cost_per_comparison() -> float:
-    """Seconds per weight comparison in the deduplication (``ols._same``)."""
-    a, b = np.random.default_rng(1).random((2, 6))
-    start = time.perf_counter()
-    for _ in range(2000):
-        ols_module._same(a, b, TOL)
-    return (time.perf_counter() - start) / 2000
-
-
 def _timed(method, spent: dict[str, float], name: str):
     def timed(*args, **kwargs):
         start = time.perf_counter()
@@ -100,7 +92,6 @@ def run(quick: bool = False) -> list[Row]:
     brute_force = _brute_force()
     budget = 2.0 if quick else 60.0
     repeats = 3 if quick else 5
-    per_comparison = _cost_per_comparison()
     # Brute force: seconds per d-subset, measured on a small case.
     small = sphere_values(8, 3)
     per_subset = _time(lambda: brute_force(small, TOL), 3) / math.comb(8 + 3, 3)
@@ -111,16 +102,14 @@ def run(quick: bool = False) -> list[Row]:
             m = qhull_vertices(values)
             ols = OLS(d, tolerance=TOL)
             ols._values = list(values)  # the corner weights depend on the values only
-            estimate_ols = m * m / 2 * per_comparison  # the deduplication dominates beyond a few hundred vertices
             subsets = math.comb(n + d, d)
             estimate_bf = subsets * per_subset
-            run_ols = estimate_ols <= budget
             run_bf = estimate_bf <= budget
-            t_ols = _time(ols.corner_weights, repeats if estimate_ols < budget / 10 else 1) if run_ols else estimate_ols
+            t_ols = _time(ols.corner_weights, repeats)
             t_bf = _time(lambda v=values: brute_force(v, TOL), 1) if run_bf else estimate_bf
-            corners = len(ols.corner_weights()) if run_ols else None
+            corners = len(ols.corner_weights())
             agree = ""
-            if run_ols and run_bf:
+            if run_bf:
                 # Every corner OLS finds is one of the brute force's; the brute force also keeps intersections
                 # within its feasibility slack (1e-6) below the surface, hence sometimes a few more points.
                 found, expected = np.array(ols.corner_weights()), brute_force(values, TOL)
@@ -128,21 +117,16 @@ def run(quick: bool = False) -> list[Row]:
                 assert max(gaps) <= 1e-5, (d, n, max(gaps))
                 agree = f"all {len(found)} in the brute force's {len(expected)}; "
             t_qhull = _time(lambda v=values: qhull_vertices(v), repeats)
-            notes = [
-                f"{agree}{'' if corners is None else f'{corners} corners, '}{m} Qhull vertices; "
-                f"Qhull alone {fmt_time(t_qhull)}"
-            ]
-            if not run_ols:
-                notes.append("OLS not run: estimated from the quadratic deduplication")
+            notes = [f"{agree}{corners} corners, {m} Qhull vertices; Qhull alone {fmt_time(t_qhull)}"]
             if not run_bf:
                 notes.append(f"brute force not run: C({n + d},{d}) = {subsets:.3g} solves")
             rows.append(
                 Row(
                     "OLS corner weights",
                     f"d={d} |CCS|={n}",
-                    fmt_time(t_ols) + ("" if run_ols else " (estimated)"),
+                    fmt_time(t_ols),
                     fmt_time(t_bf) + ("" if run_bf else " (estimated)"),
-                    t_bf / t_ols if run_ols and run_bf else None,
+                    t_bf / t_ols if run_bf else None,
                     "",
                     None,
                     "; ".join(notes),
@@ -152,27 +136,19 @@ def run(quick: bool = False) -> list[Row]:
     for d in (2, 3, 4, 6):
         for n in (10, 100, 500):
             values = sphere_values(n + 1, d, seed=d)
-            m = qhull_vertices(values)
-            estimate = m * m / 2 * per_comparison + n * 0.01
-            if estimate > budget:
-                rows.append(
-                    Row(
-                        "OLS step",
-                        f"d={d} |CCS|={n}",
-                        f"{fmt_time(estimate)} (estimated)",
-                        note=f"not run: estimated from the corner weights' deduplication ({m} vertices)",
-                    )
-                )
-                continue
-            base = OLS(d, tolerance=TOL)
-            base._values = list(values[:n])
-            base._visited = [v / v.sum() for v in values[:n]]
-            base._ccs = list(range(n))
-            base._queue = []
+            base = OLS.from_state_dict(  # n values, their n weights visited, nothing queued (CCS LPs not timed)
+                {
+                    "reward_dim": d,
+                    "tolerance": TOL,
+                    "values": values[:n].tolist(),
+                    "weights": (values[:n] / values[:n].sum(axis=1, keepdims=True)).tolist(),
+                    "queue": [],
+                }
+            )
             new_value, new_weight = values[n], values[n] / values[n].sum()
             samples: list[float] = []
-            parts: dict[str, list[float]] = {"corner_weights": [], "_priority": [], "_beats_others": []}
-            for _ in range(1 if quick or estimate > budget / 10 else 3):
+            parts: dict[str, list[float]] = {"corner_weights": [], "_priority": [], "_witness": []}
+            for _ in range(1 if quick or n >= 500 else 3):
                 ols = copy.deepcopy(base)
                 spent = {name: 0.0 for name in parts}
                 for name in parts:  # time the three parts inside the step (instance attributes shadow the methods)
@@ -191,7 +167,7 @@ def run(quick: bool = False) -> list[Row]:
                     f"d={d} |CCS|={n}",
                     f"{fmt_time(step)}/iteration",
                     note=f"corner weights {fmt_time(share['corner_weights'])}, priority LPs "
-                    f"{fmt_time(share['_priority'])}, CCS LPs ({n + 1}) {fmt_time(share['_beats_others'])}, "
+                    f"{fmt_time(share['_priority'])}, CCS LPs {fmt_time(share['_witness'])}, "
                     f"rest {fmt_time(rest)}; {len(ols.queue)} corners queued",
                 )
             )

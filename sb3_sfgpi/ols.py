@@ -25,11 +25,12 @@ The queue starts with the simplex extrema at infinite priority; once it is empty
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 from scipy.optimize import linprog
-from scipy.spatial import HalfspaceIntersection
+from scipy.spatial import HalfspaceIntersection, cKDTree
 
 from sb3_sfgpi.common.weights import simplex_extrema, validate_weights
 
@@ -40,6 +41,11 @@ _CAP = 2.0
 
 def _same(a: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
     return bool(np.max(np.abs(a - b)) <= tolerance)
+
+
+def _margin(values: np.ndarray, i: int, w: np.ndarray) -> float:
+    """``min_{j != i} w · (V_i - V_j)``: by how much value ``i`` beats every other at ``w`` (inf if it is alone)."""
+    return float(np.min(np.delete(values[i] - values, i, axis=0) @ w, initial=np.inf))
 
 
 def _corner_weights(values: np.ndarray, tolerance: float) -> list[np.ndarray]:
@@ -74,11 +80,21 @@ def _corner_weights(values: np.ndarray, tolerance: float) -> list[np.ndarray]:
     free = vertices[:, :-1]
     weights = np.clip(np.hstack([free, 1.0 - free.sum(axis=1, keepdims=True)]), 0.0, None)
     weights /= weights.sum(axis=1, keepdims=True)
-    corners: list[np.ndarray] = []
-    for w in sorted(weights, key=tuple):
-        if not any(_same(w, u, tolerance) for u in corners):
-            corners.append(w)
-    return corners
+    return _deduplicate(weights[np.lexsort(weights.T[::-1])], tolerance)
+
+
+def _deduplicate(points: np.ndarray, tolerance: float) -> list[np.ndarray]:
+    """
+    The points, in order, without those within ``tolerance`` (max-norm) of a point kept before them.
+
+    Qhull reports a vertex once per facet it closes, so a corner comes many times; a k-d tree finds each
+    point's near neighbours at once instead of comparing it with every kept point (which was quadratic).
+    """
+    neighbours = cKDTree(points).query_ball_point(points, r=tolerance, p=np.inf)
+    kept = np.zeros(len(points), dtype=bool)
+    for i, near in enumerate(neighbours):
+        kept[i] = not kept[near].any()
+    return list(points[kept])
 
 
 class OLS:
@@ -101,7 +117,9 @@ class OLS:
         self.tolerance = float(tolerance)
         self._values: list[np.ndarray] = []
         self._visited: list[np.ndarray] = []
-        self._ccs: list[int] = []  # indices into self._values
+        # The CCS: index into self._values -> a weight at which that value beats every other by more than the
+        # tolerance (a witness; a new value that does not come close to it there leaves the member in the CCS).
+        self._witnesses: dict[int, np.ndarray] = {}
         # (priority, weight), highest priority first; equal priorities in insertion order.
         self._queue: list[tuple[float, np.ndarray]] = [(math.inf, e) for e in simplex_extrema(self.reward_dim)]
 
@@ -145,19 +163,14 @@ class OLS:
             for (p, u), best in zip(self._queue, old_best, strict=True)
             if u @ value <= best + tol or u.max() >= 1 - tol
         ]
-        for corner in self.corner_weights():
-            if (
-                self._max_value(corner) - corner @ value <= tol
-                and not any(_same(corner, u, tol) for u in self._visited)
-                and not any(_same(corner, u, tol) for _, u in self._queue)
-            ):
-                priority = self._priority(corner)
-                if priority > tol:
-                    self._push(priority, corner)
+        for corner in self._new_corners(value):
+            priority = self._priority(corner)
+            if priority > tol:
+                self._push(priority, corner)
 
-        old_ccs = self._ccs
-        self._ccs = [i for i in [*old_ccs, len(self._values) - 1] if self._beats_others(i)]
-        return [i for i in old_ccs if i not in self._ccs]
+        old_ccs = list(self._witnesses)
+        self._witnesses = self._coverage([*old_ccs, len(self._values) - 1])
+        return [i for i in old_ccs if i not in self._witnesses]
 
     # --- the upper surface ----------------------------------------------------------------------------
     def corner_weights(self) -> list[np.ndarray]:
@@ -197,7 +210,7 @@ class OLS:
     @property
     def ccs(self) -> list[np.ndarray]:
         """The values in the (minimal) convex coverage set: those that beat all others at some weight."""
-        return [self._values[i].copy() for i in self._ccs]
+        return [self._values[i].copy() for i in self._witnesses]
 
     @property
     def values(self) -> list[np.ndarray]:
@@ -240,7 +253,7 @@ class OLS:
         ols._values = [np.asarray(v, dtype=np.float64) for v in state["values"]]
         ols._visited = [np.asarray(w, dtype=np.float64) for w in state["weights"]]
         ols._queue = [(float(p), np.asarray(w, dtype=np.float64)) for p, w in state["queue"]]
-        ols._ccs = [i for i in range(len(ols._values)) if ols._beats_others(i)]
+        ols._witnesses = ols._coverage(range(len(ols._values)))
         return ols
 
     # --- helpers --------------------------------------------------------------------------------------
@@ -254,6 +267,14 @@ class OLS:
         if not np.all(np.isfinite(v)):
             raise ValueError(f"value must be finite, got {v.tolist()} (NaN or inf)")
         return v
+
+    def _new_corners(self, value: np.ndarray) -> np.ndarray:
+        """The corner weights where ``value`` is on the upper surface, neither visited nor queued."""
+        corners = np.array(self.corner_weights())
+        on_surface = corners[(corners @ np.array(self._values).T).max(axis=1) - corners @ value <= self.tolerance]
+        known = np.array([*self._visited, *(u for _, u in self._queue)])
+        distance, _ = cKDTree(known).query(on_surface, p=np.inf)  # to the nearest known weight
+        return on_surface[distance > self.tolerance]
 
     def _max_value(self, w: np.ndarray) -> float:
         return float(np.max(np.array(self._values) @ w)) if self._values else -math.inf
@@ -274,12 +295,31 @@ class OLS:
         position = next((i for i, (p, _) in enumerate(self._queue) if p < priority), len(self._queue))
         self._queue.insert(position, (priority, w))
 
-    def _beats_others(self, i: int) -> bool:
-        """Whether ``max_w min_{j != i} w · (V_i - V_j) > tolerance`` over the simplex (an LP in ``(w, t)``)."""
+    def _coverage(self, candidates: Iterable[int]) -> dict[int, np.ndarray]:
+        """
+        The candidates that beat every other value by more than the tolerance at some weight, with such a weight.
+
+        A candidate's known witness is checked first (one product per value); only where it fails is the LP solved.
+        """
+        values = np.array(self._values)
+        witnesses = {}
+        for i in candidates:
+            witness = self._witnesses.get(i)
+            if witness is None or _margin(values, i, witness) <= self.tolerance:
+                witness = self._witness(i)
+            if witness is not None:
+                witnesses[i] = witness
+        return witnesses
+
+    def _witness(self, i: int) -> np.ndarray | None:
+        """
+        A weight maximising ``min_{j != i} w · (V_i - V_j)`` over the simplex (an LP in ``(w, t)``), if that
+        maximum exceeds the tolerance; else None.
+        """
         others = np.delete(np.array(self._values), i, axis=0)
-        if len(others) == 0:
-            return True
         d = self.reward_dim
+        if len(others) == 0:
+            return np.full(d, 1.0 / d)
         result = linprog(
             np.append(np.zeros(d), -1.0),  # maximise t
             A_ub=np.hstack([others - self._values[i], np.ones((len(others), 1))]),  # t <= w · (V_i - V_j)
@@ -291,4 +331,4 @@ class OLS:
         )
         if result.status != 0:
             raise RuntimeError(f"OLS coverage LP failed for value {i}: {result.message}")
-        return -result.fun > self.tolerance
+        return result.x[:d] if -result.fun > self.tolerance else None

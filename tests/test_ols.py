@@ -247,6 +247,23 @@ def test_ols_with_exact_solver_ends_with_a_ccs(policy_values, seed):
 
 
 @PROPERTY_SETTINGS
+@given(values=value_sets(max_dim=5, max_values=12))
+def test_ccs_kept_by_witness_weights_is_the_ccs_of_all_coverage_lps(values):
+    """After every addition, the CCS (members kept by a witness weight, LPs only where it fails) is the one that
+    solving every coverage LP from scratch gives, and every member beats all other values at its witness."""
+    ols = OLS(values.shape[1], tolerance=TOL)
+    for v in values:
+        left = ols.add_solution(v, np.ones(values.shape[1]))
+        fresh = OLS.from_state_dict(ols.state_dict())  # no witnesses: one LP per value
+        assert len(ols.ccs) == len(fresh.ccs) > 0
+        assert_same_points(ols.ccs, fresh.ccs, atol=0)
+        for i, witness in ols._witnesses.items():
+            others = np.delete(np.array(ols.values), i, axis=0)
+            assert len(others) == 0 or np.min((ols.values[i] - others) @ witness) > TOL
+        assert all(i not in ols._witnesses for i in left)
+
+
+@PROPERTY_SETTINGS
 @given(policy_values=value_sets(max_values=6), steps=st.integers(0, 8), seed=st.integers(0, 2**16))
 def test_priorities_are_optimistic_and_non_negative(policy_values, steps, seed):
     """Mid-run, with exact solutions at the visited weights: true gap <= Δ(w), Δ >= 0, and Δ = 0 where visited."""
