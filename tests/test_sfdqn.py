@@ -30,6 +30,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormali
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.vec_env import MODummyVecEnv, MOMonitor, wrap_mo_env
 from sb3_sfgpi.sfdqn import SFDQN
+from sb3_sfgpi.sfdqn.policies import argmax_random_ties
 
 
 def greedy_policy(model: SFDQN, one_hot: bool = False, w=None) -> tuple[int, ...]:
@@ -243,6 +244,37 @@ def test_weights_are_normalised_and_predict_w_overrides(make_tabular_sfdqn):
     assert model.predict(0, deterministic=True, w=[1, 0])[0] == 1
     assert model.predict(0, deterministic=True, w=[0, 1])[0] == 0
     np.testing.assert_array_equal(model.predict(np.arange(4), deterministic=True, w=[1, 0])[0], [1, 0, 1, 1])
+
+
+@pytest.mark.parametrize("policy", ["TabularPolicy", "MlpPolicy"])
+def test_the_behaviour_policy_breaks_ties_at_random_the_learned_policy_does_not(make_fig1_env, policy):
+    model = SFDQN(policy, make_fig1_env(), weights=[0.0, 1.0], seed=0)
+    with th.no_grad():  # ψ(s0, ·) = (22, 24), (29, 24), (22, 20): A and B tie for w = (0, 1), C is worse
+        for parameter in model.policy.sf_net.parameters():
+            parameter.zero_()
+        if policy == "TabularPolicy":
+            model.policy.sf_net.table.weight.copy_(th.as_tensor(successor_features((1, 0, 1, 1)).reshape(N_STATES, -1)))
+        else:  # a constant network: the last layer's bias alone
+            model.policy.sf_net.sf_net[-1].bias.copy_(th.as_tensor(successor_features((1, 0, 1, 1))[0].reshape(-1)))
+    model.exploration_rate = 0.0  # no ε-step: every action below is a greedy one
+    behaviour = [int(model.predict(0, deterministic=False)[0]) for _ in range(200)]
+    assert set(behaviour) == {0, 1} and 60 < behaviour.count(0) < 140  # uniform over the tied A and B, never C
+    assert {int(model.predict(0, deterministic=True)[0]) for _ in range(20)} == {0}  # the learned policy: the first
+    np.random.seed(7)
+    first = [int(model.predict(0)[0]) for _ in range(20)]
+    np.random.seed(7)
+    assert [int(model.predict(0)[0]) for _ in range(20)] == first  # the draws come from the seeded numpy.random
+
+
+def test_argmax_random_ties_is_uniform_over_the_tied_actions_and_draws_nothing_without_ties():
+    q = np.array([[1.0, 3.0, 2.0], [0.0, -1.0, 5.0]])
+    rng = np.random.default_rng(0)
+    state = rng.bit_generator.state
+    np.testing.assert_array_equal(argmax_random_ties(q, rng), [1, 2])
+    assert rng.bit_generator.state == state  # no ties: no random numbers used
+    tied = np.array([[2.0, 2.0, 1.0, 2.0]] * 3000)
+    counts = np.bincount(argmax_random_ties(tied, rng), minlength=4)
+    assert counts[2] == 0 and all(900 < c < 1100 for c in counts[[0, 1, 3]])
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -25,6 +25,17 @@ from sb3_sfgpi.common.buffers import MOReplayBuffer
 MAX_TABLE_STATES = 50_000_000
 
 
+def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
+    """
+    ``Q_w(s, a) = w · ψ(s, a)``.
+
+    :param psi: successor features, shape ``(batch, n_actions, d)``
+    :param weights: shape ``(d,)`` or ``(batch, d)``
+    :return: shape ``(batch, n_actions)``
+    """
+    return (psi * weights.reshape(-1, 1, psi.shape[-1])).sum(dim=-1)
+
+
 def greedy_actions(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
     """
     ``argmax_a w · ψ(s, a)`` (ties go to the first action).
@@ -33,8 +44,25 @@ def greedy_actions(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
     :param weights: shape ``(d,)`` or ``(batch, d)``
     :return: actions, shape ``(batch,)``
     """
-    q_values = (psi * weights.reshape(-1, 1, psi.shape[-1])).sum(dim=-1)
-    return q_values.argmax(dim=1)
+    return scalarize(psi, weights).argmax(dim=1)
+
+
+def argmax_random_ties(q_values: np.ndarray, rng: np.random.Generator | Any = np.random) -> np.ndarray:
+    """
+    ``argmax_a q(s, a)`` with ties between actions of exactly equal value broken uniformly at random.
+
+    A zero-initialised table ties in every state it has not learned: a behaviour policy that always takes the first
+    action there walks the same way until a wall stops it, and its greedy steps explore nothing.
+
+    :param q_values: shape ``(batch, n_actions)``
+    :param rng: what draws the tie-breaks: a ``numpy.random.Generator`` or the ``numpy.random`` module (seeded by
+        SB3's ``set_random_seed``)
+    :return: actions, shape ``(batch,)``
+    """
+    best = q_values == q_values.max(axis=1, keepdims=True)
+    if best.sum() == len(best):  # no ties anywhere: no random numbers drawn
+        return best.argmax(axis=1)
+    return np.where(best, rng.random(best.shape), -1.0).argmax(axis=1)
 
 
 class SFNetwork(BasePolicy):
@@ -269,19 +297,26 @@ class SFDQNPolicy(BasePolicy):
     def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         return greedy_actions(self.sf_net(obs), self.weights)
 
-    def greedy(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+    def greedy(
+        self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
+    ) -> tuple[np.ndarray, bool]:
         """
         ``argmax_a w · ψ(s, a)`` for one observation or a batch.
 
         :param observation: raw observation(s), as given to ``predict``
         :param weights: shape ``(d,)``
+        :param random_ties: break ties between actions of equal value at random (the behaviour policy) instead of
+            taking the first (the learned policy)
         :return: the actions (shape ``(batch,)``) and whether the observation was a batch
         """
         self.set_training_mode(False)
         obs_tensor, vectorized = self.obs_to_tensor(observation)
         with th.no_grad():
             weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
-            return greedy_actions(self.sf_net(obs_tensor), weights_tensor).cpu().numpy(), vectorized
+            psi = self.sf_net(obs_tensor)
+            if random_ties:
+                return argmax_random_ties(scalarize(psi, weights_tensor).cpu().numpy()), vectorized
+            return greedy_actions(psi, weights_tensor).cpu().numpy(), vectorized
 
     def td_update(
         self,
@@ -370,6 +405,10 @@ class TabularPolicy(SFDQNPolicy):
     By default there is no separate target network (``target_network=False``): targets read the table itself,
     as in Q-learning.
 
+    The table starts at zero, so every action of a state not learned yet ties: the behaviour policy breaks ties at
+    random (``greedy(..., random_ties=True)``), which keeps its greedy steps exploring there; the learned policy
+    (TD target, ``predict(deterministic=True)``) takes the first of tied actions.
+
     :param observation_space: a small integer observation space
     :param action_space: Action space (Discrete)
     :param lr_schedule: Learning rate schedule (``α``)
@@ -424,16 +463,19 @@ class TabularPolicy(SFDQNPolicy):
         # ``self.device`` walks the parameters; the table's own tensor says it directly.
         return self.sf_net.table.weight.device.type == "cpu"
 
-    def greedy(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+    def greedy(
+        self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
+    ) -> tuple[np.ndarray, bool]:
         """``argmax_a w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.greedy`)."""
         if not self._on_cpu():
-            return super().greedy(observation, weights)
+            return super().greedy(observation, weights, random_ties)
         # SB3's is_vectorized_observation, without its image-transpose step (integer spaces are never images).
         vectorized = is_vectorized_observation(observation, self.observation_space)
         net = self.sf_net
         obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
         psi = net.table.weight.detach().numpy()[net.rows(obs)].reshape(-1, net.n_actions, self.reward_dim)
-        return (psi @ np.asarray(weights, dtype=np.float32)).argmax(axis=1), vectorized
+        q_values = psi @ np.asarray(weights, dtype=np.float32)
+        return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
 
     def td_update(
         self,

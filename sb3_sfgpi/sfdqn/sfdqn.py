@@ -221,6 +221,10 @@ class SFDQN(OffPolicyAlgorithm):
         """
         ε-greedy action in ``w · ψ(s, ·)`` (greedy if ``deterministic``).
 
+        The greedy choice of the ε-greedy (behaviour) policy breaks ties between actions of equal value at random:
+        a tabular policy ties in every state it has not learned yet, and taking the first action there would
+        explore nothing. The deterministic policy, whose successor features are learned, takes the first.
+
         :param observation: the input observation (one or a batch)
         :param state: unused (no recurrent policy), returned as is
         :param episode_start: unused
@@ -235,7 +239,7 @@ class SFDQN(OffPolicyAlgorithm):
             n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
             actions = np.array([self.action_space.sample() for _ in range(n_batch)])
             return (actions if vectorized else actions[0]), state
-        actions, vectorized = self.policy.greedy(observation, weights)
+        actions, vectorized = self.policy.greedy(observation, weights, random_ties=not deterministic)
         return (actions if vectorized else actions[0]), state
 
     def _store_transition(
