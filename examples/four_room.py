@@ -6,6 +6,7 @@ per iteration the mean over seeds, the iteration at which each algorithm reaches
 the wall time of the runs.
 
     python examples/four_room.py --seeds 0 1 2 --out runs/fig4
+    python examples/four_room.py --env observation_mode=xy --out runs/fig4-xy --figure docs/figures/four_room_xy.png
 """
 
 from __future__ import annotations
@@ -44,9 +45,12 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, help="iterations per run (default: the domain's)")
     parser.add_argument("--steps-per-iteration", type=int, help="joint steps per iteration (default: the domain's)")
     parser.add_argument("--workers", type=int, default=2, help="runs trained at the same time")
+    parser.add_argument(
+        "--env", metavar="KEY=VALUE", action="append", default=[], help="env override, e.g. observation_mode=xy"
+    )
     args = parser.parse_args()
 
-    extra = []
+    extra = [f"--env={item}" for item in args.env]
     if args.iterations:
         extra += ["--iterations", str(args.iterations)]
     if args.steps_per_iteration:
