@@ -8,6 +8,7 @@ arrays (numpy allocates lazily: untouched pages cost nothing).
   rewards) on the same spaces, with and without ``optimize_memory_usage``:
 
   - Four-Room "xy": ``MultiDiscrete([13, 13])`` observations (``int64``), 4 actions, d = 3;
+  - Four-Room "full" (the ``four-room`` preset's): ``MultiDiscrete([13, 13] + [2] * 12)`` (``int64``);
   - traffic: ``Box(0, 1, (15,), float32)`` observations, 2 actions, d = 2.
 
   The ratio is SB3's bytes / ours: the vector rewards cost ``4 (d - 1)`` bytes more per transition.
@@ -32,6 +33,7 @@ NAME = "memory"
 N = 1_000_000
 BUFFERS = [  # (label, space, d, n_actions)
     ("Four-Room xy", "xy", 3, 4),
+    ("Four-Room full", "full", 3, 4),
     ("traffic", "traffic", 2, 2),
 ]
 
@@ -40,7 +42,11 @@ def _space(kind: str):
     import numpy as np
     from gymnasium import spaces
 
-    return spaces.MultiDiscrete([13, 13]) if kind == "xy" else spaces.Box(0.0, 1.0, shape=(15,), dtype=np.float32)
+    if kind == "xy":
+        return spaces.MultiDiscrete([13, 13])
+    if kind == "full":
+        return spaces.MultiDiscrete([13, 13] + [2] * 12)
+    return spaces.Box(0.0, 1.0, shape=(15,), dtype=np.float32)
 
 
 def child_buffer(kind: str, d: int, n_actions: int, which: str, optimize: bool) -> dict:
