@@ -82,7 +82,7 @@ AGENT_IDS: tuple[str, str] = ("agent_0", "agent_1")
 #: Default starts: agent_0 at MO-Gymnasium's single-agent start, agent_1 in the bottom-right room.
 DEFAULT_STARTS: tuple[tuple[int, int], tuple[int, int]] = ((12, 0), (12, 11))
 
-OBSERVATION_MODES: tuple[str, str] = ("xy", "full")
+OBSERVATION_MODES: tuple[str, str, str] = ("xy", "own", "full")
 
 # Rendering: pixels per cell and RGB colours.
 _CELL_PX = 20
@@ -119,9 +119,10 @@ class FourRoomParallelEnv(ParallelEnv):
     :param goal_reward: reward vector (shape ``(3,)``, finite) given to an agent when it enters the goal.
     :param max_steps: number of steps after which every remaining agent is truncated.
     :param observation_mode: ``"xy"`` (the paper): the agent's own ``[row, col]``,
-        ``MultiDiscrete([13, 13])``; ``"full"``: ``[row, col]`` followed by 12 flags, 1 when the
-        object is gone (collected by either agent), ``MultiDiscrete([13, 13] + [2] * 12)``.
-        Observations are ``int64`` arrays.
+        ``MultiDiscrete([13, 13])``; ``"own"``: ``[row, col]`` followed by 12 flags, 1 when this agent has
+        collected the object (what it knows of its own progress; the other agent stays unobserved);
+        ``"full"``: ``[row, col]`` followed by 12 flags, 1 when the object is gone (collected by either agent).
+        The last two are ``MultiDiscrete([13, 13] + [2] * 12)``. Observations are ``int64`` arrays.
     :param render_mode: ``None`` or ``"rgb_array"`` (:meth:`render` returns an ``(H, W, 3)`` ``uint8`` image).
     """
 
@@ -159,7 +160,7 @@ class FourRoomParallelEnv(ParallelEnv):
         self.render_mode: str | None = render_mode
 
         # Spaces, built once: the *_space(agent) methods return these same objects.
-        nvec = [HEIGHT, WIDTH] + ([2] * N_OBJECTS if observation_mode == "full" else [])
+        nvec = [HEIGHT, WIDTH] + ([2] * N_OBJECTS if observation_mode != "xy" else [])
         self.observation_spaces: dict[str, spaces.MultiDiscrete] = {
             agent: spaces.MultiDiscrete(nvec, dtype=np.int64) for agent in self.possible_agents
         }
@@ -288,7 +289,7 @@ class FourRoomParallelEnv(ParallelEnv):
         for collected in self._collected:
             collected[:] = False
         self._t = 0
-        observations = {agent: self._observe(self._cells[i]) for i, agent in enumerate(self.possible_agents)}
+        observations = {agent: self._observe(i) for i, agent in enumerate(self.possible_agents)}
         infos = {agent: {"collected": self._collected[i].copy()} for i, agent in enumerate(self.possible_agents)}
         return observations, infos
 
@@ -357,15 +358,17 @@ class FourRoomParallelEnv(ParallelEnv):
                 survivors.append(agent)
 
         # Observations after every agent has moved, so the "full" flags show this step's collections.
-        observations = {agent: self._observe(cells[self._index[agent]]) for agent in agents}
+        observations = {agent: self._observe(self._index[agent]) for agent in agents}
         infos = {agent: {"collected": self._collected[self._index[agent]].copy()} for agent in agents}
         self.agents = survivors
         return observations, rewards, terminations, truncations, infos
 
-    def _observe(self, cell: int) -> np.ndarray:
+    def _observe(self, agent: int) -> np.ndarray:
+        cell = self._cells[agent]
         if self.observation_mode == "xy":
             return self._xy[cell].copy()
-        return np.concatenate((self._xy[cell], self._gone))
+        flags = self._gone if self.observation_mode == "full" else self._collected[agent]
+        return np.concatenate((self._xy[cell], flags), dtype=np.int64)
 
     @property
     def agent_positions(self) -> dict[str, tuple[int, int]]:

@@ -18,7 +18,9 @@ Policy-set directory format (``GPIPolicy.save`` / ``GPIPolicy.load``)::
                        "observation_space": {...}, "action_space": {...}, "network": {...},
                        "policies": [{"file": "policy_000.pt", "weights": [...], "value": [...] | null,
                                      "agent": str | null, "iteration": int | null}, ...]}
-    policy_000.pt     the state dict of one SF network (tensors only, read with weights_only=True)
+    policy_000.pt     the state dict of one SF network (tensors only, read with weights_only=True); a table is
+                      stored as its non-zero rows: "table.rows" (their indices), "table.values" (the rows)
+                      and "table.shape" instead of the dense "table.weight" (which is read too)
 
 The manifest is written last and atomically, so a directory whose save was interrupted keeps the
 previous manifest or has none. Loading never runs code from the directory.
@@ -347,7 +349,7 @@ class GPIPolicy:
             file = f"policy_{i:03d}.pt"
             # Each file is replaced atomically too: an interrupted save leaves the previous set loadable.
             buffer = io.BytesIO()
-            th.save({k: v.cpu() for k, v in net.state_dict().items()}, buffer)
+            th.save(_file_state(net), buffer)
             atomic_write_bytes(directory / file, buffer.getvalue())
             entries.append(info.to_dict(file))
         first = self._first()
@@ -388,7 +390,7 @@ class GPIPolicy:
             policy_set = cls(device=device)
             for entry in manifest["policies"]:
                 net = build_network(manifest["network"], observation_space, action_space, reward_dim)
-                net.load_state_dict(_read_state_dict(directory, entry["file"]))
+                net.load_state_dict(_network_state(net, _read_state_dict(directory, entry["file"])))
                 policy_set.add(
                     net,
                     weights=entry["weights"],
@@ -405,9 +407,12 @@ class GPIPolicy:
 
 class _StackedTables:
     """
-    The tables of a tabular set, stacked state-major: row ``s`` holds ``ψ^π(s, ·)`` of every policy ``π``.
+    The tables of a tabular set, stacked state-major: row ``k`` holds ``ψ^π(s, ·)`` of every policy ``π`` for the
+    ``k``-th state that some policy has learned (a non-zero row), and one last row of zeros serves every other state.
 
-    ``ψ`` of a batch is one ``index_select`` of its rows (contiguous ``P·A·d`` floats per observation).
+    Tables of large observation spaces are mostly zero (the Four-Room with object flags: under 1% of the rows), so
+    the stack holds the learned rows only. ``ψ`` of a batch is one gather of its rows (``P·A·d`` contiguous floats
+    per observation).
     """
 
     def __init__(self, networks: list[TabularSFNetwork]):
@@ -418,11 +423,17 @@ class _StackedTables:
         self.low = first.low.cpu().numpy()
         self.strides = first.strides.cpu().numpy()
         with th.no_grad():
-            self.tables = th.stack([net.table.weight for net in networks], dim=1).reshape(self.n_states, -1)
-        self.tables_numpy = self.tables.numpy() if self.tables.device.type == "cpu" else None
+            learned = th.stack([net.table.weight.any(dim=1) for net in networks]).any(dim=0).nonzero().flatten()
+            self.stack_row = th.full((self.n_states,), len(learned), dtype=th.long, device=learned.device)
+            self.stack_row[learned] = th.arange(len(learned), device=learned.device)
+            rows = th.stack([net.table.weight[learned] for net in networks], dim=1).reshape(len(learned), -1)
+            self.tables = th.cat([rows, rows.new_zeros(1, rows.shape[1])])
+        cpu = self.tables.device.type == "cpu"
+        self.tables_numpy = self.tables.numpy() if cpu else None
+        self.stack_row_numpy = self.stack_row.numpy() if cpu else None
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
-        rows = self.tables.index_select(0, self.state_index(obs_tensor))
+        rows = self.tables.index_select(0, self.stack_row[self.state_index(obs_tensor)])
         return rows.view(-1, self.n_policies, self.n_actions, self.reward_dim).transpose(0, 1)
 
     def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -431,7 +442,7 @@ class _StackedTables:
         index = ((obs.astype(np.int64).reshape(obs.shape[0], -1) - self.low) * self.strides).sum(axis=1)
         if index.size and (index.min() < 0 or index.max() >= self.n_states):
             raise IndexError(f"observation outside the table ({self.n_states} rows): {obs.tolist()}")
-        rows = self.tables_numpy.take(index, axis=0).reshape(-1, self.reward_dim)
+        rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
         return (rows @ weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
 
 
@@ -514,3 +525,31 @@ def _read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
     if not isinstance(state, dict) or not all(isinstance(v, th.Tensor) for v in state.values()):
         raise CorruptPolicySetError(f"policy file {path} does not hold a state dict of tensors")
     return state
+
+
+def _file_state(net: nn.Module) -> dict[str, th.Tensor]:
+    """What a policy file holds: the network's state dict, a table's only by its non-zero rows (most stay zero)."""
+    state = {key: value.detach().cpu() for key, value in net.state_dict().items()}
+    if isinstance(net, TabularSFNetwork):
+        table = state.pop("table.weight")
+        rows = table.any(dim=1).nonzero().flatten()
+        state.update({"table.rows": rows, "table.values": table[rows], "table.shape": th.tensor(table.shape)})
+    return state
+
+
+def _network_state(net: nn.Module, state: dict[str, th.Tensor]) -> dict[str, th.Tensor]:
+    """The state dict of ``net`` from what a policy file holds (the inverse of :func:`_file_state`)."""
+    if not isinstance(net, TabularSFNetwork) or "table.weight" in state:
+        return state
+    state = dict(state)
+    rows, values, shape = state.pop("table.rows"), state.pop("table.values"), state.pop("table.shape")
+    expected = net.table.weight.shape
+    if tuple(shape.tolist()) != tuple(expected):
+        raise ValueError(f"the stored table has shape {tuple(shape.tolist())}, the network's is {tuple(expected)}")
+    if rows.dtype != th.long or rows.ndim != 1 or values.shape != (len(rows), expected[1]):
+        raise ValueError(f"stored table rows {tuple(rows.shape)} and values {tuple(values.shape)} do not match")
+    if len(rows) and (rows.min() < 0 or rows.max() >= expected[0]):
+        raise ValueError(f"stored table rows outside 0..{expected[0] - 1}")
+    table = th.zeros(expected, dtype=values.dtype)
+    table[rows] = values
+    return {**state, "table.weight": table}

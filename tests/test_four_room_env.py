@@ -48,7 +48,7 @@ def make(**kwargs) -> FourRoomParallelEnv:
 
 
 # ---------------------------------------------------------------------------- API
-@pytest.mark.parametrize("observation_mode", ["xy", "full"])
+@pytest.mark.parametrize("observation_mode", ["xy", "own", "full"])
 @pytest.mark.parametrize(
     "starts",
     [None, [(0, 11), (1, 12)]],  # default starts; starts next to the goal so agents leave at different times
@@ -70,7 +70,9 @@ def test_exported_from_package_and_metadata():
     assert env.possible_agents == [A0, A1]
 
 
-@pytest.mark.parametrize(("mode", "nvec"), [("xy", [13, 13]), ("full", [13, 13] + [2] * 12)])
+@pytest.mark.parametrize(
+    ("mode", "nvec"), [("xy", [13, 13]), ("own", [13, 13] + [2] * 12), ("full", [13, 13] + [2] * 12)]
+)
 def test_spaces(mode, nvec):
     env = FourRoomParallelEnv(observation_mode=mode)
     for agent in env.possible_agents:
@@ -98,7 +100,7 @@ def test_reward_space_contents():
     np.testing.assert_array_equal(custom.high, [2, 1, 1])
 
 
-@pytest.mark.parametrize("mode", ["xy", "full"])
+@pytest.mark.parametrize("mode", ["xy", "own", "full"])
 def test_rewards_and_observations_dtype_shape_in_random_rollout(mode):
     env = FourRoomParallelEnv(observation_mode=mode, starts=[(0, 9), (9, 12)])
     env.reset(seed=3)
@@ -269,6 +271,21 @@ def test_object_disappears_for_the_other_agent():
     np.testing.assert_array_equal(rewards[A0], ZERO)
 
 
+def test_own_observation_shows_only_the_objects_this_agent_collected():
+    env = make(starts=[(12, 10), (11, 12)], observation_mode="own")
+    k = OBJECT_CELLS.index((12, 12))
+    obs, rewards, _, _, infos = step(env, RIGHT, DOWN)  # agent_1 takes the blue square at (12, 12)
+    np.testing.assert_array_equal(rewards[A1], BLUE)
+    np.testing.assert_array_equal(obs[A1][2:], infos[A1]["collected"])  # its own collections ...
+    assert obs[A1][2 + k] == 1 and obs[A1][2:].sum() == 1
+    assert obs[A0][2:].sum() == 0  # ... not the other agent's
+    obs, rewards, *_ = step(env, RIGHT, UP)  # agent_0 arrives one step late: nothing, and nothing observed
+    np.testing.assert_array_equal(rewards[A0], ZERO)
+    np.testing.assert_array_equal(obs[A0], [12, 12] + [0] * 12)
+    obs, _ = env.reset()
+    assert all(obs[a][2:].sum() == 0 for a in obs)
+
+
 @pytest.mark.parametrize("reverse_dict", [False, True])
 @pytest.mark.parametrize("swap_sides", [False, True])
 def test_simultaneous_arrival_goes_to_agent_0(reverse_dict, swap_sides):
@@ -288,7 +305,7 @@ def test_simultaneous_arrival_goes_to_agent_0(reverse_dict, swap_sides):
     assert infos[A0]["collected"].sum() == 1 and infos[A1]["collected"].sum() == 0
 
 
-@pytest.mark.parametrize("mode", ["xy", "full"])
+@pytest.mark.parametrize("mode", ["xy", "own", "full"])
 def test_returned_arrays_are_fresh(mode):
     """Callers may keep or modify what step/reset return: nothing is aliased to the env's state."""
     env = make(starts=[(12, 10), (9, 9)], observation_mode=mode)

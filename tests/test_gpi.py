@@ -233,6 +233,33 @@ def test_save_load_round_trip(tmp_path, kind, make_random_mlp, make_random_tabul
     assert len(GPIPolicy.load(tmp_path / "set")) == 4
 
 
+def test_tables_are_stored_and_stacked_by_their_learned_rows(tmp_path, make_random_tabular):
+    """Mostly-zero tables (large observation spaces) cost their non-zero rows on disk and in the GPI stack."""
+    policy_set = GPIPolicy()
+    for seed, learned in enumerate(([0, 5, 17], [5, 20], [])):  # MultiDiscrete([3, 4, 2]): 24 rows
+        net = make_random_tabular(seed)
+        with th.no_grad():
+            keep = th.zeros(24, dtype=th.bool)
+            keep[learned] = True
+            net.table.weight[~keep] = 0.0
+        policy_set.add(net, weights=[1.0, 1.0, 1.0])
+    policy_set.save(tmp_path / "set")
+    stored = th.load(tmp_path / "set" / "policy_000.pt", weights_only=True)
+    assert set(stored) == {"table.rows", "table.values", "table.shape"}
+    assert stored["table.rows"].tolist() == [0, 5, 17] and stored["table.values"].shape == (3, 9)
+    assert th.load(tmp_path / "set" / "policy_002.pt", weights_only=True)["table.rows"].numel() == 0
+    loaded = GPIPolicy.load(tmp_path / "set")
+    for original, restored in zip(policy_set.networks, loaded.networks, strict=True):
+        th.testing.assert_close(restored.table.weight, original.table.weight, rtol=0, atol=0)
+    assert loaded._stack().tables.shape == (4 + 1, 3 * 9)  # rows 0, 5, 17, 20 and one zero row for the others
+    every_state = np.array([[i, j, k] for i in range(3) for j in range(4) for k in range(2)])
+    obs_tensor, _ = loaded._obs_to_tensor(every_state)
+    np.testing.assert_array_equal(loaded.successor_features(every_state), loaded._psi_vmap(obs_tensor).numpy())
+    for w in ([1.0, 0.0, 0.0], [0.2, 0.3, 0.5]):
+        q = np.max(loaded._psi_vmap(obs_tensor).numpy() @ (np.array(w, dtype=np.float32) / np.sum(w)), axis=0)
+        np.testing.assert_allclose(loaded.q_values(every_state, w), q, rtol=1e-6, atol=1e-6)
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Corrupt, half-written or foreign directories
 # --------------------------------------------------------------------------------------------------------------
@@ -266,6 +293,30 @@ def truncate_policy_file(directory: Path) -> None:
 
 def wrong_shapes(directory: Path) -> None:
     th.save({"table.weight": th.zeros(N_STATES + 1, 6)}, directory / "policy_001.pt")
+
+
+def sparse_table(directory: Path, **changes) -> None:
+    """Rewrite policy 1 with its table stored by rows, with some of the stored tensors replaced."""
+    state = th.load(directory / "policy_001.pt", weights_only=True)
+    th.save({**state, **changes}, directory / "policy_001.pt")
+
+
+def sparse_rows_outside_the_table(directory: Path) -> None:
+    sparse_table(directory, **{"table.rows": th.tensor([0, N_STATES]), "table.values": th.ones(2, 6)})
+
+
+def sparse_table_of_another_shape(directory: Path) -> None:
+    sparse_table(directory, **{"table.shape": th.tensor([N_STATES + 1, 6])})
+
+
+def sparse_values_not_matching_rows(directory: Path) -> None:
+    sparse_table(directory, **{"table.rows": th.tensor([0, 1]), "table.values": th.ones(3, 6)})
+
+
+def sparse_table_without_rows(directory: Path) -> None:
+    state = th.load(directory / "policy_001.pt", weights_only=True)
+    del state["table.rows"]
+    th.save(state, directory / "policy_001.pt")
 
 
 def not_tensors(directory: Path) -> None:
@@ -303,6 +354,10 @@ def missing_key(directory: Path) -> None:
         (truncate_policy_file, "policy_001.pt is unreadable"),
         (wrong_shapes, "size mismatch"),
         (not_tensors, "state dict of tensors"),
+        (sparse_rows_outside_the_table, "rows outside 0..4"),
+        (sparse_table_of_another_shape, r"stored table has shape \(6, 6\), the network's is \(5, 6\)"),
+        (sparse_values_not_matching_rows, r"rows \(2,\) and values \(3, 6\) do not match"),
+        (sparse_table_without_rows, "table.rows"),
         (foreign_manifest, "not an sb3-sfgpi policy-set manifest"),
         (future_version, "unsupported policy-set version 99"),
         (escaping_file_name, r"\.\./outside\.pt.* is missing"),
