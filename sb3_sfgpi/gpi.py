@@ -426,7 +426,8 @@ class _StackedTables:
             learned = th.stack([net.table.weight.any(dim=1) for net in networks]).any(dim=0).nonzero().flatten()
             self.stack_row = th.full((self.n_states,), len(learned), dtype=th.long, device=learned.device)
             self.stack_row[learned] = th.arange(len(learned), device=learned.device)
-            rows = th.stack([net.table.weight[learned] for net in networks], dim=1).reshape(len(learned), -1)
+            width = self.n_policies * self.n_actions * self.reward_dim
+            rows = th.stack([net.table.weight[learned] for net in networks], dim=1).reshape(len(learned), width)
             self.tables = th.cat([rows, rows.new_zeros(1, rows.shape[1])])
         cpu = self.tables.device.type == "cpu"
         self.tables_numpy = self.tables.numpy() if cpu else None

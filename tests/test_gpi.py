@@ -260,6 +260,20 @@ def test_tables_are_stored_and_stacked_by_their_learned_rows(tmp_path, make_rand
         np.testing.assert_allclose(loaded.q_values(every_state, w), q, rtol=1e-6, atol=1e-6)
 
 
+def test_a_set_of_untrained_tables_acts(tmp_path, make_random_tabular):
+    policy_set = GPIPolicy()
+    for seed in range(2):
+        net = make_random_tabular(seed)
+        with th.no_grad():
+            net.table.weight.zero_()
+        policy_set.add(net, weights=[1.0, 0.0, 0.0])
+    policy_set.save(tmp_path / "set")
+    loaded = GPIPolicy.load(tmp_path / "set")
+    observations = np.array([[0, 0, 0], [2, 3, 1]])
+    np.testing.assert_array_equal(loaded.q_values(observations, [0.2, 0.3, 0.5]), np.zeros((2, 3)))
+    np.testing.assert_array_equal(loaded.predict(observations, [0.2, 0.3, 0.5])[0], [0, 0])  # ties: the first
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Corrupt, half-written or foreign directories
 # --------------------------------------------------------------------------------------------------------------
