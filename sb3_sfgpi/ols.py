@@ -306,23 +306,26 @@ class OLS:
         for i in candidates:
             witness = self._witnesses.get(i)
             if witness is None or _margin(values, i, witness) <= self.tolerance:
-                witness = self._witness(i)
+                witness = self._witness(values, i)
             if witness is not None:
                 witnesses[i] = witness
         return witnesses
 
-    def _witness(self, i: int) -> np.ndarray | None:
+    def _witness(self, values: np.ndarray, i: int) -> np.ndarray | None:
         """
         A weight maximising ``min_{j != i} w · (V_i - V_j)`` over the simplex (an LP in ``(w, t)``), if that
         maximum exceeds the tolerance; else None.
+
+        :param values: the values, as one array (built once per :meth:`_coverage`)
+        :param i: the row of the candidate
         """
-        others = np.delete(np.array(self._values), i, axis=0)
+        others = np.delete(values, i, axis=0)
         d = self.reward_dim
         if len(others) == 0:
             return np.full(d, 1.0 / d)
         result = linprog(
             np.append(np.zeros(d), -1.0),  # maximise t
-            A_ub=np.hstack([others - self._values[i], np.ones((len(others), 1))]),  # t <= w · (V_i - V_j)
+            A_ub=np.hstack([others - values[i], np.ones((len(others), 1))]),  # t <= w · (V_i - V_j)
             b_ub=np.zeros(len(others)),
             A_eq=np.append(np.ones(d), 0.0)[None],
             b_eq=[1.0],
