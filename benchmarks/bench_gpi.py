@@ -20,8 +20,9 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 
 from benchmarks._common import Row, calls_for, fmt_time, interleaved
 from sb3_sfgpi.common.weights import validate_weights
-from sb3_sfgpi.gpi import GPIPolicy, _StackedVmap
+from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn import SFNetwork, TabularSFNetwork
+from sb3_sfgpi.stacking import StackedVmap
 
 NAME = "gpi"
 TARGET = 5.0
@@ -51,7 +52,7 @@ def loop_predict(networks: list, observation: np.ndarray, w: np.ndarray) -> np.n
     return actions if vectorized else actions[0]
 
 
-def vmap_predict(policy_set: GPIPolicy, stacked: _StackedVmap, observation: np.ndarray, w: np.ndarray) -> np.ndarray:
+def vmap_predict(policy_set: GPIPolicy, stacked: StackedVmap, observation: np.ndarray, w: np.ndarray) -> np.ndarray:
     """The previous ``GPIPolicy.predict``: SB3's obs_to_tensor, then vmap over the stacked module state."""
     weights = th.as_tensor(validate_weights(w, policy_set.reward_dim), dtype=th.float32)
     obs_tensor, vectorized = policy_set.networks[0].obs_to_tensor(observation)
@@ -73,7 +74,7 @@ def run(quick: bool = False) -> list[Row]:
             policy_set = GPIPolicy()
             for net in networks:
                 policy_set.add(net, weights=np.ones(d))
-            stacked = _StackedVmap(policy_set.networks)
+            stacked = StackedVmap(policy_set.networks)
             w = np.random.default_rng(0).dirichlet(np.ones(d))
             for batch in (1, 256):
                 space.seed(batch)

@@ -12,7 +12,6 @@ the wall time of the runs.
 from __future__ import annotations
 
 import argparse
-import csv
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -20,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_sfgpi.cli import align_runs
+from sb3_sfgpi.plots import align_runs
+from sb3_sfgpi.run_directory import RunDirectory
 
 
 def train(out: Path, algo: str, seed: int, extra: list[str]) -> Path:
     run = out / f"{algo}-s{seed}"
-    resume = ["--resume"] if (run / "run.json").exists() else []
+    resume = ["--resume"] if RunDirectory(run).is_run() else []
     command = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--algo", algo, "--seed", str(seed)]
     subprocess.run([*command, "--out", str(run), "--no-progress", *resume, *extra], check=True)
     return run
@@ -91,8 +91,7 @@ def main() -> None:
 
 
 def read_rows(run: Path) -> list[dict[str, str]]:
-    with open(run / "evaluation.csv") as handle:
-        return list(csv.DictReader(handle))
+    return RunDirectory(run).read_summary()
 
 
 def max_iterations(runs: list[Path]) -> int:

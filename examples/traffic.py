@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from sb3_sfgpi.cli import load_domain, main
+from sb3_sfgpi.run_directory import RunDirectory
 
 
 def _run(argv: list[str]) -> None:
@@ -40,7 +41,7 @@ def _run(argv: list[str]) -> None:
 
 def _train(out: Path, argv: list[str]) -> None:
     """Train into ``out``; resume it if it exists (a finished run does nothing)."""
-    _run([*argv, "--out", str(out), *(["--resume"] if (out / "run.json").exists() else [])])
+    _run([*argv, "--out", str(out), *(["--resume"] if RunDirectory(out).is_run() else [])])
 
 
 def _tag(w: list[float]) -> str:
@@ -120,7 +121,7 @@ def env_speed(episodes: int = 3, seed: int = 0) -> float:
     import time
 
     domain = load_domain("traffic")
-    env = domain["make_env"](**domain["env_kwargs"])
+    env = domain.make_env(**domain.env_kwargs)
     rng = np.random.default_rng(seed)
     start = time.perf_counter()
     simulated = 0.0
@@ -140,27 +141,26 @@ def evaluation_speed(run_dir: Path, workers: int = 2) -> dict[str, float]:
     and in ``workers`` worker processes (pool started beforehand); checks that the returns are identical."""
     import time
 
-    from sb3_sfgpi.common.evaluation import EvaluationJob, ParallelEvaluator, run_job
-    from sb3_sfgpi.common.weights import random_weights
-    from sb3_sfgpi.multiagent import derive_seed
+    from sb3_sfgpi.common.seeding import derive_seed
+    from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, run_job
 
-    config = json.loads((run_dir / "run.json").read_text())
+    run = RunDirectory(run_dir)
+    config = run.read_config()
     domain = load_domain("traffic")
     gamma = config["learner_kwargs"]["gamma"]
-    weights = random_weights(2, config["n_test_weights"], rng=0)
     jobs = [
-        EvaluationJob(derive_seed(config["seed"], "eval", i), tuple(w), 1, str(run_dir / "policy_set"),
+        EvaluationJob(derive_seed(config["seed"], "eval", i), tuple(w), 1, str(run.policy_set_dir),
                       ccs_only=config.get("gpi_set") == "ccs")
-        for i, w in enumerate(weights)
+        for i, w in enumerate(config["test_weights"])
     ]  # fmt: skip
     start = time.perf_counter()
-    env = domain["make_env"](**config["env_kwargs"])
+    env = domain.make_env(**config["env_kwargs"])
     try:
         in_process = [run_job(env, job, gamma) for job in jobs]
     finally:
         env.close()
     seconds = {"in-process": time.perf_counter() - start}
-    with ParallelEvaluator(domain["make_env"], config["env_kwargs"], workers, gamma) as evaluator:
+    with ParallelEvaluator(domain.make_env, config["env_kwargs"], workers, gamma) as evaluator:
         evaluator.run(jobs[:workers])  # start the pool
         start = time.perf_counter()
         parallel = evaluator.run(jobs)
@@ -176,14 +176,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=Path("runs/traffic-paper"), help="folder of all the runs")
     parser.add_argument("--figures", type=Path, default=Path("docs/figures"), help="folder of the PNGs")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="one MA-SFOLS run per seed (Fig. 7)")
-    parser.add_argument("--iterations", type=int, default=domain["iterations"], help="MA-SFOLS iterations")
-    parser.add_argument("--steps-per-iteration", type=int, default=domain["steps_per_iteration"])
+    parser.add_argument("--iterations", type=int, default=domain.iterations, help="MA-SFOLS iterations")
+    parser.add_argument("--steps-per-iteration", type=int, default=domain.steps_per_iteration)
     parser.add_argument(
         "--fixed-weights", type=float, nargs=2, action="append", help="weights of the scalarised learners (repeat)"
     )
     parser.add_argument("--no-fixed", action="store_true", help="skip the scalarised learners")
     parser.add_argument("--episodes", type=int, default=5, help="evaluation episodes per method in the comparison")
-    parser.add_argument("--eval-workers", type=int, default=domain["eval_workers"], help="evaluation processes")
+    parser.add_argument("--eval-workers", type=int, default=domain.eval_workers, help="evaluation processes")
     parser.add_argument(
         "--speed",
         action="store_true",
@@ -191,7 +191,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "the time of its GPI evaluation in-process and in --eval-workers processes",
     )
     args = parser.parse_args(argv)
-    args.fixed_weights = [] if args.no_fixed else (args.fixed_weights or domain["fixed_weights"])
+    args.fixed_weights = [] if args.no_fixed else (args.fixed_weights or domain.fixed_weights)
     return args
 
 
@@ -207,7 +207,7 @@ def run(args: argparse.Namespace) -> list[tuple[str, bool, str]]:
         fixed_argv = ["train", "traffic", *common, "--seed", str(seed), "--algo", "fixed", "--w", *map(str, w)]
         _train(out, [*fixed_argv, "--budget-from", str(masfols[0])])  # the steps per agent MA-SFOLS took
 
-    compare_file = args.out / "compare.json"
+    compare_file = RunDirectory(args.out).compare_file
     argv = ["compare", str(masfols[0]), "--episodes", str(args.episodes), "--workers", str(max(args.eval_workers, 1))]
     _run([*argv, *(["--fixed", *map(str, fixed)] if fixed else []), "-o", str(compare_file)])
 
@@ -231,9 +231,12 @@ if __name__ == "__main__":  # the evaluation workers are spawned: they re-import
     if arguments.speed:
         print(f"traffic env: {env_speed():.0f} simulated seconds per second (random actions, 3 episodes of 500 s)")
         run_dir = arguments.out / f"ma-sfols-s{arguments.seeds[0]}"
-        if (run_dir / "checkpoint.json").exists():
+        if RunDirectory(run_dir).has_checkpoint():
             timing = evaluation_speed(run_dir, max(arguments.eval_workers, 1))
-            print(f"GPI on the test weights of {run_dir}: " + ", ".join(f"{k} {v:.1f} s" for k, v in timing.items())
-                  + " (identical returns)")
+            print(
+                f"GPI on the test weights of {run_dir}: "
+                + ", ".join(f"{k} {v:.1f} s" for k, v in timing.items())
+                + " (identical returns)"
+            )
     else:
         run(arguments)

@@ -1,7 +1,27 @@
 """sb3-sfgpi: successor features, OLS and GPI for Stable-Baselines3."""
 
+from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, ValueEstimation
 from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.masfols import MASFOLS
+from sb3_sfgpi.multiagent import MultiAgentRunner
+from sb3_sfgpi.ols import OLS
+from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.schedules import FixedSchedule, OLSSchedule, RandomSchedule
 from sb3_sfgpi.sfdqn import SFDQN
 
 __version__ = "0.1.0"
-__all__ = ["SFDQN", "GPIPolicy", "__version__"]
+__all__ = [
+    "MASFOLS",
+    "OLS",
+    "SFDQN",
+    "EvaluationConfig",
+    "FixedSchedule",
+    "GPIPolicy",
+    "MultiAgentRunner",
+    "OLSCallback",
+    "OLSSchedule",
+    "RandomSchedule",
+    "RunDirectory",
+    "ValueEstimation",
+    "__version__",
+]

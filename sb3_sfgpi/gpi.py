@@ -2,15 +2,8 @@
 
 ``π(s) = argmax_a max_{π ∈ Π} w · ψ^π(s, a)``: any preference ``w`` gets a behaviour from the set,
 without training. All networks of a set share one architecture and are evaluated in a single batched
-pass over their stacked parameters, built once after the set changes:
-
-* tabular sets: one gather of the observed rows from a ``(S, P·A·d)`` stack of the tables;
-* MLP sets (parameter-free features extractor, ``Linear`` layers and activations): the features are
-  extracted once and every layer is one batched matrix product over the ``P`` networks;
-* anything else: ``torch.func.stack_module_state`` + ``vmap`` over ``functional_call``.
-
-The three give the same ``ψ`` (the specialised ones skip the per-call overhead of ``vmap``, about a
-millisecond per decision; see ``benchmarks/bench_gpi.py``).
+pass (:mod:`sb3_sfgpi.stacking`), built once after the set changes. A set also selects its sub-sets: the
+policies whose values form its CCS, the policies one agent learned, and the joint policy of agents acting by GPI.
 
 Policy-set directory format (``GPIPolicy.save`` / ``GPIPolicy.load``)::
 
@@ -18,9 +11,7 @@ Policy-set directory format (``GPIPolicy.save`` / ``GPIPolicy.load``)::
                        "observation_space": {...}, "action_space": {...}, "network": {...},
                        "policies": [{"file": "policy_000.pt", "weights": [...], "value": [...] | null,
                                      "agent": str | null, "iteration": int | null}, ...]}
-    policy_000.pt     the state dict of one SF network (tensors only, read with weights_only=True); a table is
-                      stored as its non-zero rows: "table.rows" (their indices), "table.values" (the rows)
-                      and "table.shape" instead of the dense "table.weight" (which is read too)
+    policy_000.pt     one SF network's tensors (:mod:`sb3_sfgpi.policy_files`)
 
 The manifest is written last and atomically, so a directory whose save was interrupted keeps the
 previous manifest or has none. Loading never runs code from the directory.
@@ -30,7 +21,7 @@ from __future__ import annotations
 
 import copy
 import io
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,11 +30,10 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.preprocessing import is_image_space
-from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.utils import is_vectorized_observation
 from torch import nn
-from torch.func import functional_call, stack_module_state
 
+from sb3_sfgpi.common.rollouts import JointPolicy
 from sb3_sfgpi.common.serialization import (
     atomic_write_bytes,
     atomic_write_json,
@@ -52,17 +42,23 @@ from sb3_sfgpi.common.serialization import (
     space_to_dict,
 )
 from sb3_sfgpi.common.weights import validate_weights
-from sb3_sfgpi.sfdqn.policies import SFNetwork, TabularSFNetwork
+from sb3_sfgpi.ols import OLS
+from sb3_sfgpi.policy_files import (
+    CorruptPolicySetError,
+    build_network,
+    file_state,
+    network_spec,
+    network_state,
+    read_state_dict,
+)
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
+from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap, stack_networks
+
+__all__ = ["CorruptPolicySetError", "GPIPolicy", "PolicyInfo"]
 
 FORMAT = "sb3-sfgpi/policy-set"
 VERSION = 1
 MANIFEST = "manifest.json"
-_ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
-
-
-class CorruptPolicySetError(ValueError):
-    """A policy-set directory that cannot be loaded: missing, truncated, inconsistent or foreign files."""
 
 
 @dataclass(frozen=True)
@@ -91,57 +87,6 @@ class PolicyInfo:
         }
 
 
-def network_spec(net: nn.Module) -> dict[str, Any]:
-    """
-    Plain-data description of an SF network's architecture (enough to rebuild it).
-
-    :raises ValueError: a network this format cannot describe
-    """
-    if isinstance(net, TabularSFNetwork):
-        return {"kind": "tabular"}
-    if isinstance(net, SFNetwork):
-        if type(net.features_extractor) is not FlattenExtractor or net.activation_fn.__name__ not in _ACTIVATIONS:
-            raise ValueError(
-                "the policy-set format stores MLP SF networks with FlattenExtractor and a standard activation "
-                f"({sorted(_ACTIVATIONS)}), got {type(net.features_extractor).__name__} / {net.activation_fn.__name__}"
-            )
-        return {
-            "kind": "mlp",
-            "net_arch": list(net.net_arch),
-            "activation_fn": net.activation_fn.__name__,
-            "normalize_images": bool(net.normalize_images),
-        }
-    raise ValueError(f"not an SF network: {type(net).__name__}")
-
-
-def build_network(
-    spec: dict[str, Any], observation_space: spaces.Space, action_space: spaces.Discrete, reward_dim: int
-) -> nn.Module:
-    """
-    A fresh SF network from :func:`network_spec` data.
-
-    :raises ValueError: unknown kind or activation
-    """
-    if spec.get("kind") == "tabular":
-        return TabularSFNetwork(observation_space, action_space, reward_dim)
-    if spec.get("kind") == "mlp":
-        if spec.get("activation_fn") not in _ACTIVATIONS:
-            known = sorted(_ACTIVATIONS)
-            raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {known}")
-        extractor = FlattenExtractor(observation_space)
-        return SFNetwork(
-            observation_space,
-            action_space,
-            extractor,
-            extractor.features_dim,
-            reward_dim,
-            net_arch=[int(n) for n in spec["net_arch"]],
-            activation_fn=_ACTIVATIONS[spec["activation_fn"]],
-            normalize_images=bool(spec.get("normalize_images", True)),
-        )
-    raise ValueError(f"unknown network kind {spec.get('kind')!r}")
-
-
 class GPIPolicy:
     """
     A set of successor-feature policies acting by generalized policy improvement.
@@ -154,7 +99,7 @@ class GPIPolicy:
         self.device = th.device(device)
         self.networks: list[nn.Module] = []
         self.infos: list[PolicyInfo] = []
-        self._stacked: _StackedTables | _StackedMLP | _StackedVmap | None = None
+        self._stacked: StackedTables | StackedMLP | StackedVmap | None = None
         self._weights_cache: tuple[Any, tuple[np.ndarray, th.Tensor, np.ndarray]] | None = None
         for model in models:
             self.add(model)
@@ -228,15 +173,74 @@ class GPIPolicy:
         self._weights_cache = None
         return len(self.networks) - 1
 
-    def _stack(self) -> _StackedTables | _StackedMLP | _StackedVmap:
+    # --- selections ---------------------------------------------------------------------------------------
+    def subset(self, indices: Iterable[int]) -> GPIPolicy:
+        """A new set holding copies of the policies at ``indices``, in that order, with their infos."""
+        subset = GPIPolicy(device=self.device)
+        for i in indices:
+            info = self.infos[i]
+            subset.add(self.networks[i], info.weights, info.value, info.agent, info.iteration)
+        return subset
+
+    def agent_policies(self, agent: str) -> GPIPolicy:
+        """
+        The policies ``agent`` learned itself (e.g. the set of an a priori scalarised learner).
+
+        :raises ValueError: the agent has no policy in the set
+        """
+        indices = [i for i, info in enumerate(self.infos) if info.agent == agent]
+        if not indices:
+            raise ValueError(f"the policy set has no policy learned by agent {agent!r}")
+        return self.subset(indices)
+
+    def ccs_policies(self, tolerance: float = 1e-6) -> GPIPolicy:
+        """
+        The policies whose value vectors ``V^π`` form the set's convex coverage set (CCS): those that are the best
+        of the set, by more than ``tolerance``, for some weight (by :class:`~sb3_sfgpi.ols.OLS` over the stored
+        values; of policies with the same value the first is kept). GPI over them ignores dominated policies,
+        whose learned SFs can only mislead it where they overestimate.
+
+        :return: a new set holding the CCS policies, in their order in this set
+        :raises ValueError: no policy of the set has a value
+        """
+        with_values = [i for i, info in enumerate(self.infos) if info.value is not None]
+        if not with_values:
+            raise ValueError("the policies of the set carry no value vectors: their CCS is unknown")
+        ols = OLS(self.reward_dim, tolerance=tolerance)
+        for i in with_values:
+            ols.add_solution(self.infos[i].value, self.infos[i].weights)
+        kept: list[int] = []
+        for i in with_values:
+            value = np.asarray(self.infos[i].value)
+            in_ccs = any(np.max(np.abs(value - v)) <= tolerance for v in ols.ccs)
+            if in_ccs and not any(np.max(np.abs(value - self.infos[j].value)) <= tolerance for j in kept):
+                kept.append(i)
+        return self.subset(kept)
+
+    def joint_policy(self, w: np.ndarray | Sequence[float], agents: Sequence[str] | None = None) -> JointPolicy:
+        """
+        The joint policy of agents acting by GPI for the preference ``w``.
+
+        :param w: preference weights
+        :param agents: None: every agent acts by GPI over the whole set (one batched call per step); the agents'
+            names: each of them acts by GPI over the policies it learned itself (:meth:`agent_policies`)
+        :raises ValueError: bad weights; an agent without policies in the set
+        """
+        self._validated_weights(w)
+        own = None if agents is None else {agent: self.agent_policies(agent) for agent in agents}
+
+        def act(observations: dict[str, Any]) -> dict[str, int]:
+            names = list(observations)
+            if own is None:
+                actions, _ = self.predict(np.stack([observations[a] for a in names]), w)
+                return dict(zip(names, actions.tolist(), strict=True))
+            return {a: int(own[a].predict(observations[a], w)[0]) for a in names}
+
+        return act
+
+    def _stack(self) -> StackedTables | StackedMLP | StackedVmap:
         if self._stacked is None:
-            first = self.networks[0]
-            if isinstance(first, TabularSFNetwork):
-                self._stacked = _StackedTables(self.networks)  # type: ignore[arg-type]
-            elif _StackedMLP.supports(first):
-                self._stacked = _StackedMLP(self.networks)  # type: ignore[arg-type]
-            else:
-                self._stacked = _StackedVmap(self.networks)
+            self._stacked = stack_networks(self.networks)
         return self._stacked
 
     def _psi(self, obs_tensor: th.Tensor) -> th.Tensor:
@@ -247,7 +251,7 @@ class GPIPolicy:
     def _psi_vmap(self, obs_tensor: th.Tensor) -> th.Tensor:
         """``ψ`` by the generic ``vmap`` path, whatever the kind of network (a reference for tests and benchmarks)."""
         with th.no_grad():
-            return _StackedVmap(self.networks).psi(obs_tensor)
+            return StackedVmap(self.networks).psi(obs_tensor)
 
     def _obs_to_tensor(self, observation: np.ndarray) -> tuple[th.Tensor, bool]:
         return self._first().obs_to_tensor(observation)
@@ -306,7 +310,7 @@ class GPIPolicy:
 
     def _gpi_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
         stacked = self._stack()
-        if isinstance(stacked, _StackedTables) and self.device.type == "cpu":
+        if isinstance(stacked, StackedTables) and self.device.type == "cpu":
             return stacked.q_values_numpy(obs, weights[2])
         obs_tensor = th.as_tensor(obs, device=self.device)
         with th.no_grad():
@@ -349,7 +353,7 @@ class GPIPolicy:
             file = f"policy_{i:03d}.pt"
             # Each file is replaced atomically too: an interrupted save leaves the previous set loadable.
             buffer = io.BytesIO()
-            th.save(_file_state(net), buffer)
+            th.save(file_state(net), buffer)
             atomic_write_bytes(directory / file, buffer.getvalue())
             entries.append(info.to_dict(file))
         first = self._first()
@@ -390,7 +394,7 @@ class GPIPolicy:
             policy_set = cls(device=device)
             for entry in manifest["policies"]:
                 net = build_network(manifest["network"], observation_space, action_space, reward_dim)
-                net.load_state_dict(_network_state(net, _read_state_dict(directory, entry["file"])))
+                net.load_state_dict(network_state(net, read_state_dict(directory, entry["file"])))
                 policy_set.add(
                     net,
                     weights=entry["weights"],
@@ -403,154 +407,3 @@ class GPIPolicy:
         except (KeyError, TypeError, ValueError, RuntimeError) as error:
             raise CorruptPolicySetError(f"cannot load the policy set in {directory}: {error}") from error
         return policy_set
-
-
-class _StackedTables:
-    """
-    The tables of a tabular set, stacked state-major: row ``k`` holds ``ψ^π(s, ·)`` of every policy ``π`` for the
-    ``k``-th state that some policy has learned (a non-zero row), and one last row of zeros serves every other state.
-
-    Tables of large observation spaces are mostly zero (the Four-Room with object flags: under 1% of the rows), so
-    the stack holds the learned rows only. ``ψ`` of a batch is one gather of its rows (``P·A·d`` contiguous floats
-    per observation).
-    """
-
-    def __init__(self, networks: list[TabularSFNetwork]):
-        first = networks[0]
-        self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
-        self.n_states = first.table.num_embeddings
-        self.state_index = first.state_index
-        self.low = first.low.cpu().numpy()
-        self.strides = first.strides.cpu().numpy()
-        with th.no_grad():
-            learned = th.stack([net.table.weight.any(dim=1) for net in networks]).any(dim=0).nonzero().flatten()
-            self.stack_row = th.full((self.n_states,), len(learned), dtype=th.long, device=learned.device)
-            self.stack_row[learned] = th.arange(len(learned), device=learned.device)
-            width = self.n_policies * self.n_actions * self.reward_dim
-            rows = th.stack([net.table.weight[learned] for net in networks], dim=1).reshape(len(learned), width)
-            self.tables = th.cat([rows, rows.new_zeros(1, rows.shape[1])])
-        cpu = self.tables.device.type == "cpu"
-        self.tables_numpy = self.tables.numpy() if cpu else None
-        self.stack_row_numpy = self.stack_row.numpy() if cpu else None
-
-    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
-        rows = self.tables.index_select(0, self.stack_row[self.state_index(obs_tensor)])
-        return rows.view(-1, self.n_policies, self.n_actions, self.reward_dim).transpose(0, 1)
-
-    def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """GPI action values of a batch, in numpy (CPU sets): cheaper than torch for a few small operations."""
-        assert self.tables_numpy is not None
-        index = ((obs.astype(np.int64).reshape(obs.shape[0], -1) - self.low) * self.strides).sum(axis=1)
-        if index.size and (index.min() < 0 or index.max() >= self.n_states):
-            raise IndexError(f"observation outside the table ({self.n_states} rows): {obs.tolist()}")
-        rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
-        return (rows @ weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
-
-
-class _StackedMLP:
-    """
-    MLP SF networks stacked layer by layer: weights ``(P, in, out)``, biases ``(P, 1, out)``.
-
-    The features extractor has no parameters, so the features are computed once and shared; each ``Linear``
-    of the ``P`` networks is then one ``baddbmm``.
-    """
-
-    def __init__(self, networks: list[SFNetwork]):
-        first = networks[0]
-        self.first = first
-        self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
-        self.layers: list[tuple[th.Tensor, th.Tensor] | nn.Module] = []
-        with th.no_grad():
-            for i, module in enumerate(first.sf_net):
-                if isinstance(module, nn.Linear):
-                    linears = [net.sf_net[i] for net in networks]
-                    weight = th.stack([lin.weight.transpose(0, 1) for lin in linears]).contiguous()
-                    bias = th.stack([lin.bias for lin in linears]).unsqueeze(1)
-                    self.layers.append((weight, bias))
-                else:
-                    self.layers.append(module)
-
-    @staticmethod
-    def supports(net: nn.Module) -> bool:
-        """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
-        if not isinstance(net, SFNetwork) or not isinstance(net.sf_net, nn.Sequential):
-            return False
-        extractor = net.features_extractor
-        if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):
-            return False
-        allowed = tuple(_ACTIVATIONS.values())
-        for module in net.sf_net:
-            if isinstance(module, nn.Linear):
-                if module.bias is None:
-                    return False
-            elif type(module) not in allowed:
-                return False
-        return True
-
-    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
-        features = self.first.extract_features(obs_tensor, self.first.features_extractor)
-        n_policies = self.n_policies
-        x = features.unsqueeze(0).expand(n_policies, *features.shape)
-        for layer in self.layers:
-            if isinstance(layer, tuple):
-                x = th.baddbmm(layer[1], x, layer[0])
-            else:
-                x = layer(x)
-        return x.view(n_policies, -1, self.n_actions, self.reward_dim)
-
-
-class _StackedVmap:
-    """Any networks of one architecture: ``stack_module_state`` + ``vmap`` over ``functional_call``."""
-
-    def __init__(self, networks: list[nn.Module]):
-        self.params, self.buffers = stack_module_state(networks)  # type: ignore[arg-type]
-        self.skeleton = copy.deepcopy(networks[0]).to("meta")
-
-    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
-        skeleton = self.skeleton
-
-        def one(p: dict[str, th.Tensor], b: dict[str, th.Tensor], x: th.Tensor) -> th.Tensor:
-            return functional_call(skeleton, (p, b), (x,))
-
-        return th.vmap(one, in_dims=(0, 0, None))(self.params, self.buffers, obs_tensor)
-
-
-def _read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
-    path = directory / file
-    if Path(file).name != file or not path.is_file():
-        raise CorruptPolicySetError(f"policy file {file!r} listed in {directory / MANIFEST} is missing")
-    try:
-        state = th.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises many types for truncated files and refused pickles
-        raise CorruptPolicySetError(f"policy file {path} is unreadable or unsafe: {error}") from error
-    if not isinstance(state, dict) or not all(isinstance(v, th.Tensor) for v in state.values()):
-        raise CorruptPolicySetError(f"policy file {path} does not hold a state dict of tensors")
-    return state
-
-
-def _file_state(net: nn.Module) -> dict[str, th.Tensor]:
-    """What a policy file holds: the network's state dict, a table's only by its non-zero rows (most stay zero)."""
-    state = {key: value.detach().cpu() for key, value in net.state_dict().items()}
-    if isinstance(net, TabularSFNetwork):
-        table = state.pop("table.weight")
-        rows = table.any(dim=1).nonzero().flatten()
-        state.update({"table.rows": rows, "table.values": table[rows], "table.shape": th.tensor(table.shape)})
-    return state
-
-
-def _network_state(net: nn.Module, state: dict[str, th.Tensor]) -> dict[str, th.Tensor]:
-    """The state dict of ``net`` from what a policy file holds (the inverse of :func:`_file_state`)."""
-    if not isinstance(net, TabularSFNetwork) or "table.weight" in state:
-        return state
-    state = dict(state)
-    rows, values, shape = state.pop("table.rows"), state.pop("table.values"), state.pop("table.shape")
-    expected = net.table.weight.shape
-    if tuple(shape.tolist()) != tuple(expected):
-        raise ValueError(f"the stored table has shape {tuple(shape.tolist())}, the network's is {tuple(expected)}")
-    if rows.dtype != th.long or rows.ndim != 1 or values.shape != (len(rows), expected[1]):
-        raise ValueError(f"stored table rows {tuple(rows.shape)} and values {tuple(values.shape)} do not match")
-    if len(rows) and (rows.min() < 0 or rows.max() >= expected[0]):
-        raise ValueError(f"stored table rows outside 0..{expected[0] - 1}")
-    table = th.zeros(expected, dtype=values.dtype)
-    table[rows] = values
-    return {**state, "table.weight": table}

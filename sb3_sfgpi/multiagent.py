@@ -10,7 +10,6 @@ callback)`` calls ``callback.on_step()`` after every joint step, and a callback 
 from __future__ import annotations
 
 import time
-import zlib
 from collections.abc import Callable
 from typing import Any
 
@@ -24,16 +23,12 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 from tqdm.auto import tqdm
 
-from sb3_sfgpi.common.evaluation import EpisodeReturns, run_episodes
+from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
+from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.sfdqn import SFDQN
 
 #: Builds the learner of an agent: ``(agent, per-agent VecEnv, weights, seed) -> SFDQN``.
 LearnerFactory = Callable[[str, VecEnv, np.ndarray, int], SFDQN]
-
-
-def derive_seed(seed: int, *parts: Any) -> int:
-    """A seed for a sub-task (an iteration, an agent, ...) that depends only on ``seed`` and ``parts``."""
-    return zlib.crc32(repr((seed, *parts)).encode()) & 0x7FFFFFFF
 
 
 class AgentVecEnv(VecEnv):
@@ -205,7 +200,7 @@ class MultiAgentRunner:
             if learner.train_freq.unit != TrainFrequencyUnit.STEP:  # type: ignore[union-attr]
                 raise ValueError("the multi-agent runner supports train_freq in steps only")
             self.learners[agent] = learner
-        self._reset_env(derive_seed(self.seed, iteration, "reset"))
+        self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for agent, learner in self.learners.items():
             if self.tensorboard_log is not None:
                 learner.tensorboard_log = self.tensorboard_log
@@ -219,7 +214,8 @@ class MultiAgentRunner:
             callback.on_rollout_start()
             self._learner_callbacks[agent] = callback
 
-    def _reset_env(self, seed: int | None = None) -> None:
+    def reset_env(self, seed: int | None = None) -> None:
+        """Reset the shared env and hand every learner its first observation (training continues from there)."""
         obs, _ = self.env.reset(seed=seed)
         for agent in self.agents:
             batched = np.asarray(obs[agent])[None]
@@ -253,7 +249,7 @@ class MultiAgentRunner:
                 infos[agent],
             )
         if not self.env.agents:
-            self._reset_env()
+            self.reset_env()
         return keep_going
 
     def _learner_step(
@@ -317,18 +313,31 @@ class MultiAgentRunner:
             self.end_iteration()
         self._monitors: dict[str, list] = {}
 
-    def evaluate_learners(self, n_episodes: int, seed: int) -> EpisodeReturns:
+    def learner_policy(self, agent: str | None = None) -> JointPolicy:
         """
-        Monte-Carlo returns of the learners' greedy policies, all agents acting together.
+        The joint policy of the learners' greedy policies.
 
-        The shared env is reset afterwards, so training resumes on a fresh episode.
+        :param agent: None: every agent acts with its own learner; an agent's name: every agent acts with that
+            agent's learner (the value of its policy as a shared one)
         """
 
         def act(observations: dict[str, Any]) -> dict[str, int]:
-            return {a: int(self.learners[a].predict(o, deterministic=True)[0]) for a, o in observations.items()}
+            if agent is None:
+                return {a: int(self.learners[a].predict(o, deterministic=True)[0]) for a, o in observations.items()}
+            names = list(observations)
+            actions, _ = self.learners[agent].predict(np.stack([observations[a] for a in names]), deterministic=True)
+            return dict(zip(names, actions.tolist(), strict=True))
 
-        returns = run_episodes(self.env, act, n_episodes, self.gamma, seed=seed)
-        self._reset_env()
+        return act
+
+    def rollout(self, policy: JointPolicy, n_episodes: int, seed: int) -> EpisodeReturns:
+        """
+        Monte-Carlo returns of a joint policy on the shared env (episode ``i`` resets with ``seed + i``).
+
+        The shared env is reset afterwards, so training resumes on a fresh episode.
+        """
+        returns = run_episodes(self.env, policy, n_episodes, self.gamma, seed=seed)
+        self.reset_env()
         self._monitors = {}
         return returns
 
@@ -351,7 +360,7 @@ class MultiAgentRunner:
             raise ValueError("MultiAgentRunner.learn needs a runner-level callback such as OLSCallback")
         callback.init_callback(self)  # type: ignore[arg-type]
         callback.on_training_start(locals(), globals())
-        if not self.learners:  # the callback has nothing to train (e.g. a finished run was resumed)
+        if not self._learner_callbacks:  # no iteration started: nothing to train (e.g. a finished run was resumed)
             callback.on_training_end()
             return self
         bar = tqdm(

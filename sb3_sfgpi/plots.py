@@ -8,19 +8,20 @@
   (paper Figs. 11-15), from a comparison file;
 * :func:`plot_tradeoff` -- the per-objective episode metrics of every method in one scatter plot.
 
-A comparison file is what ``sb3-sfgpi compare`` writes (see :mod:`sb3_sfgpi.cli`): one row per evaluated
+A comparison file is what ``sb3-sfgpi compare`` writes (see :mod:`sb3_sfgpi.cli.compare`): one row per evaluated
 method with its weights, returns, episode metrics and per-step traces (sum over agents, mean and std over
 episodes).
 """
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from sb3_sfgpi.run_directory import RunDirectory
 
 LABELS = {"ma-sfols": "MA-SFOLS + GPI", "random": "Random + GPI", "fixed": "fixed-weight learners"}
 
@@ -62,20 +63,19 @@ def align_runs(runs: list[dict[int, float]]) -> np.ndarray:
 
 
 def plot_returns(
-    runs: Sequence[tuple[str, Path]], output: Path, metric: str = "mean_return", title: str | None = None
+    runs: Sequence[tuple[str, RunDirectory]], output: Path, metric: str = "mean_return", title: str | None = None
 ) -> Path:
     """
-    GPI's ``metric`` over iterations (``evaluation.csv`` of each run), mean ± std over the runs of an algorithm.
+    GPI's ``metric`` over iterations (each run's summary rows), mean ± std over the runs of an algorithm.
 
     :param runs: (algorithm, run directory) pairs
     :param output: the PNG file
-    :param metric: a column of ``evaluation.csv``
+    :param metric: a column of the summary (:data:`~sb3_sfgpi.run_directory.SUMMARY_FIELDS`)
     :param title: the title (default: a description of the curve)
     """
     curves: dict[str, list[dict[int, float]]] = {}
     for algorithm, run_dir in runs:
-        with open(run_dir / "evaluation.csv") as handle:
-            rows = list(csv.DictReader(handle))
+        rows = run_dir.read_summary()
         curves.setdefault(algorithm, []).append(
             {int(row["iteration"]) + 1: float(row[metric]) for row in rows if row[metric] != ""}
         )

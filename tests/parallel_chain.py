@@ -11,7 +11,23 @@ from gymnasium import spaces
 from momdp import N_STATES, REWARDS, optimal_value
 from pettingzoo import ParallelEnv
 
-__all__ = ["ParallelChainEnv", "optimal_value"]
+from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+
+__all__ = ["CHAIN_LEARNER", "ParallelChainEnv", "make_chain_runner", "optimal_value"]
+
+#: Tabular SFDQN settings that solve the chain in a few hundred steps per agent.
+CHAIN_LEARNER = dict(
+    policy="TabularPolicy",
+    learning_rate=0.3,
+    gamma=1.0,
+    exploration_initial_eps=1.0,
+    exploration_fraction=0.6,
+    exploration_final_eps=0.1,
+    learning_starts=0,
+    train_freq=1,
+    batch_size=16,
+    buffer_size=10_000,
+)
 
 
 class ParallelChainEnv(ParallelEnv):
@@ -58,3 +74,10 @@ class ParallelChainEnv(ParallelEnv):
             infos[agent] = {}
         self.agents = [a for a in self.agents if not (terminations[a] or truncations[a])]
         return obs, rewards, terminations, truncations, infos
+
+
+def make_chain_runner(n_agents: int = 2, seed: int = 0, max_steps: int | None = None) -> MultiAgentRunner:
+    """Independent tabular learners (:data:`CHAIN_LEARNER`) on a :class:`ParallelChainEnv`."""
+    return MultiAgentRunner(
+        ParallelChainEnv(n_agents, max_steps=max_steps), default_learner_factory(**CHAIN_LEARNER), seed=seed
+    )

@@ -75,7 +75,7 @@ def test_plot_draws_a_png(run_dir, tmp_path):
 
 
 def test_plot_mean_over_seeds_forward_fills_runs_that_ended_early():
-    from sb3_sfgpi.cli import align_runs
+    from sb3_sfgpi.plots import align_runs
 
     values = align_runs([{1: 1.0, 2: 2.0}, {1: 3.0}])
     np.testing.assert_allclose(values, [[1.0, 2.0], [3.0, 3.0]])

@@ -20,8 +20,9 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from torch import nn
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.gpi import GPIPolicy, _StackedMLP, _StackedTables, _StackedVmap
+from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn import SFDQN
+from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap
 
 # --------------------------------------------------------------------------------------------------------------
 # GPI
@@ -38,7 +39,7 @@ def test_stacked_gpi_paths_equal_the_vmap_path(kind, make_random_mlp, make_rando
     space.seed(3)
     observations = np.stack([space.sample() for _ in range(17)])
     obs_tensor, _ = policy_set._obs_to_tensor(observations)
-    assert isinstance(policy_set._stack(), _StackedMLP if kind == "mlp" else _StackedTables)
+    assert isinstance(policy_set._stack(), StackedMLP if kind == "mlp" else StackedTables)
     reference = policy_set._psi_vmap(obs_tensor)
     np.testing.assert_allclose(policy_set.successor_features(observations), reference.numpy(), rtol=1e-6, atol=1e-6)
     for w in ([1.0, 0.0, 0.0], [0.2, 0.3, 0.5]):
@@ -75,11 +76,11 @@ def test_tabular_gpi_refuses_observations_outside_the_table(make_random_tabular)
 def test_networks_the_stacked_mlp_does_not_know_use_vmap(make_random_mlp):
     odd = make_random_mlp(0)
     odd.sf_net = nn.Sequential(odd.sf_net[0], nn.Softplus(), *list(odd.sf_net)[2:])
-    assert not _StackedMLP.supports(odd)
+    assert not StackedMLP.supports(odd)
     policy_set = GPIPolicy()
     policy_set.add(odd, weights=[1.0, 0.0, 0.0])
     observations = np.random.default_rng(0).uniform(-1, 1, size=(5, 4)).astype(np.float32)
-    assert isinstance(policy_set._stack(), _StackedVmap)
+    assert isinstance(policy_set._stack(), StackedVmap)
     with th.no_grad():
         expected = odd(th.as_tensor(observations)).numpy()
     np.testing.assert_allclose(policy_set.successor_features(observations)[0], expected, rtol=1e-6, atol=1e-6)

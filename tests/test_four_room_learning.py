@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 from sfgpi_envs.domains import four_room
 
-from sb3_sfgpi.callbacks import OLSCallback
-from sb3_sfgpi.common.evaluation import run_episodes
+from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback
+from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.schedules import OLSSchedule
 
 ITERATIONS = 2
 
@@ -26,7 +27,9 @@ def test_gpi_beats_a_random_policy_on_every_test_weight():
     gamma = domain["learner_kwargs"]["gamma"]
     test_weights = random_weights(3, domain["n_test_weights"], rng=0)
     runner = MultiAgentRunner(env, default_learner_factory(**domain["learner_kwargs"]), seed=0, gamma=gamma)
-    callback = OLSCallback(domain["steps_per_iteration"], test_weights, max_iterations=ITERATIONS)
+    callback = OLSCallback(
+        OLSSchedule(), domain["steps_per_iteration"], EvaluationConfig(test_weights), max_iterations=ITERATIONS
+    )
     runner.learn(ITERATIONS * domain["steps_per_iteration"], callback)
     assert len(callback.history) == ITERATIONS
 

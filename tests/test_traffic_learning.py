@@ -15,13 +15,7 @@ pytest.importorskip("libsumo")
 from sfgpi_envs.traffic import TrafficSignalEnv, run_program_episode  # noqa: E402
 
 from sb3_sfgpi.cli import main  # noqa: E402
-from sb3_sfgpi.common.evaluation import (  # noqa: E402
-    EvaluationJob,
-    ParallelEvaluator,
-    ccs_subset,
-    evaluate_gpi_parallel,
-    run_job,
-)
+from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, evaluate_gpi_parallel, run_job  # noqa: E402
 from sb3_sfgpi.gpi import GPIPolicy  # noqa: E402
 from sb3_sfgpi.multiagent import MultiAgentRunner  # noqa: E402
 from sb3_sfgpi.sfdqn import SFNetwork  # noqa: E402
@@ -101,12 +95,12 @@ def test_reward_scale_per_objective():
             TrafficSignalEnv(reward_scale=bad)
 
 
-def test_ccs_subset_keeps_the_undominated_policies(tmp_path):
+def test_ccs_policies_keeps_the_undominated_policies(tmp_path):
     policy_set = _random_policy_set(tmp_path)  # 6 policies; give them values: 2 on the CCS, 1 duplicate, 3 dominated
     values = [[-1.0, -5.0], [-3.0, -3.0], [-5.0, -1.0], [-5.0, -1.0], [-6.0, -6.0], [-4.0, -4.0]]
     for i, value in enumerate(values):
         policy_set.infos[i] = policy_set.infos[i].__class__(policy_set.infos[i].weights, np.array(value), "J1", i)
-    subset = ccs_subset(policy_set)
+    subset = policy_set.ccs_policies()
     assert [info.iteration for info in subset.infos] == [0, 2]  # [-3, -3] is below the segment of the others
     obs = np.zeros((1, 15), dtype=np.float32)
     np.testing.assert_array_equal(subset.successor_features(obs), policy_set.successor_features(obs)[[0, 2]])
@@ -167,7 +161,7 @@ def test_fixed_weight_learners_compare_and_plots(tmp_path):
     assert main(["train", "traffic", *TINY, "--algo", "fixed", "--w", "0.4", "0.6", "--out", str(fixed)]) == 0
     config = json.loads((fixed / "run.json").read_text())
     # the same steps per agent as an MA-SFOLS run of this budget, in one iteration
-    assert (config["iterations"], config["steps_per_iteration"], config["fixed_weights"]) == (1, 32, [0.4, 0.6])
+    assert (config["iterations"], config["steps_per_iteration"], config["weights"]) == (1, 32, [0.4, 0.6])
     taken = json.loads((masfols / "checkpoint.json").read_text())["timesteps"]  # OLS may end before the cap
     budget = ["--budget-from", str(masfols), "--out", str(tmp_path / "budget"), "--iterations", "1"]
     assert main(["train", "traffic", "--algo", "fixed", "--w", "1", "0", *budget, "--steps-per-iteration", "1"]) == 0

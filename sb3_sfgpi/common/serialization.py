@@ -102,3 +102,20 @@ def read_json(path: str | Path, what: str) -> Any:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise ValueError(f"{what} {path} is not valid JSON (truncated or corrupt?): {error}") from error
+
+
+def jsonable(value: Any) -> Any:
+    """Numbers, strings, lists and dicts only (numpy values become Python ones, NaN None; the rest is dropped)."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items() if jsonable(v) is not None}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, (np.integer, np.floating, np.bool_)):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None  # JSON has no NaN or infinity
+    if isinstance(value, (int, float, str, bool)) or value is None:
+        return value
+    return None

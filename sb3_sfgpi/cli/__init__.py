@@ -1,0 +1,42 @@
+"""Command line: ``sb3-sfgpi train | evaluate | compare | plot`` (one module per command).
+
+Domains (``four-room``, ``traffic``, ...) are found through the entry-point group ``sb3_sfgpi.domains``
+(:mod:`sb3_sfgpi.cli.presets`). A user mistake is one line on stderr and exit code 2; training stopped by an error
+(e.g. the simulator died, or Ctrl-C) is one line naming the intact checkpoint and exit code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from sb3_sfgpi.cli import compare, evaluate, plot, train
+from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
+from sb3_sfgpi.cli.presets import DomainPreset, available_domains, load_domain
+
+COMMANDS = {"train": train, "evaluate": evaluate, "compare": compare, "plot": plot}
+
+__all__ = ["DomainPreset", "TrainingStopped", "UsageError", "available_domains", "load_domain", "main"]
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """The command line's arguments (argparse exits with code 2 and one usage line on a malformed one)."""
+    parser = argparse.ArgumentParser(prog="sb3-sfgpi", description="MA-SFOLS + GPI with Stable-Baselines3")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for command in COMMANDS.values():
+        command.add_parser(sub)
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``sb3-sfgpi`` console script."""
+    args = parse_args(argv)
+    try:
+        return COMMANDS[args.command].run(args)
+    except (UsageError, ValueError) as error:
+        print(f"sb3-sfgpi {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except TrainingStopped as error:
+        print(f"sb3-sfgpi {args.command}: error: {error}", file=sys.stderr)
+        return 1

@@ -1,0 +1,73 @@
+"""``sb3-sfgpi plot``: GPI's return over iterations from run directories, or a comparison file's figures."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from sb3_sfgpi import plots
+from sb3_sfgpi.cli.compare import COMPARE_FORMAT
+from sb3_sfgpi.cli.errors import UsageError
+from sb3_sfgpi.common.serialization import read_json
+from sb3_sfgpi.run_directory import SUMMARY_FIELDS, RunDirectory
+
+PLOT_KINDS = ("returns", "steps", "versus", "tradeoff")
+
+
+def add_parser(sub: Any) -> None:
+    """The ``plot`` sub-command's arguments."""
+    plot = sub.add_parser(
+        "plot",
+        help="returns: GPI return over iterations, mean ± std over seeds (run directories); steps, versus, "
+        "tradeoff: from a comparison file",
+    )
+    plot.add_argument("run_dirs", type=Path, nargs="+", metavar="INPUT", help="run directories, or a comparison file")
+    plot.add_argument(
+        "-o", "--output", type=Path, required=True, help="PNG file (returns, tradeoff) or directory (steps, versus)"
+    )
+    plot.add_argument("--kind", choices=PLOT_KINDS, default="returns")
+    plot.add_argument(
+        "--smooth", type=int, default=10, help="steps, versus: moving average over this many steps (1: raw curves)"
+    )
+    metrics = [field for field in SUMMARY_FIELDS if field not in ("iteration", "timesteps", "wall_time", "eval_time")]
+    plot.add_argument("--metric", default="mean_return", choices=metrics)
+    plot.add_argument("--title", default=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Draw the figure(s) and print the files written."""
+    written = _returns(args) if args.kind == "returns" else _from_comparison(args)
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
+def _returns(args: argparse.Namespace) -> list[Path]:
+    runs = []
+    for path in args.run_dirs:
+        run_dir = RunDirectory(path)
+        config = run_dir.read_config()
+        if not run_dir.has_evaluations():
+            raise UsageError(f"{path} has no evaluation yet")
+        runs.append((config.get("algorithm", "run"), run_dir))
+    return [plots.plot_returns(runs, args.output, args.metric, args.title)]
+
+
+def _from_comparison(args: argparse.Namespace) -> list[Path]:
+    if len(args.run_dirs) != 1:
+        raise UsageError(f"--kind {args.kind} draws one comparison file, got {len(args.run_dirs)} inputs")
+    path = args.run_dirs[0]
+    compare = read_json(path, "comparison") if path.is_file() else None
+    if not isinstance(compare, dict) or compare.get("format") != COMPARE_FORMAT:
+        raise UsageError(f"{path} is not a comparison file (written by sb3-sfgpi compare)")
+    if args.smooth < 1:
+        raise UsageError(f"--smooth must be positive, got {args.smooth}")
+    draw: dict[str, Callable[[dict[str, Any], Path], Any]] = {
+        "steps": lambda c, o: plots.plot_step_metrics(c, o, smooth=args.smooth),
+        "versus": lambda c, o: plots.plot_versus(c, o, smooth=args.smooth),
+        "tradeoff": plots.plot_tradeoff,
+    }
+    result = draw[args.kind](compare, args.output)
+    return result if isinstance(result, list) else [result]

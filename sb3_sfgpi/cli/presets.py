@@ -1,0 +1,117 @@
+"""Domain presets: found through the entry-point group ``sb3_sfgpi.domains``, validated when loaded.
+
+A domain's entry point is a callable returning a plain :class:`dict` (so that environment packages need not import
+``sb3_sfgpi``); :meth:`DomainPreset.from_dict` turns it into a typed preset, and a missing or misspelt key is a
+one-line error naming the key and the domain.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import MISSING, Field, dataclass, field, fields
+from importlib.metadata import EntryPoint, entry_points
+from typing import Any
+
+from sb3_sfgpi.cli.errors import UsageError
+
+ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
+
+
+@dataclass(frozen=True)
+class DomainPreset:
+    """
+    What ``sb3-sfgpi`` needs to know of a domain.
+
+    :param name: the domain's name
+    :param make_env: a picklable callable building the PettingZoo ParallelEnv from ``env_kwargs``
+    :param env_kwargs: the env's keyword arguments
+    :param learner_kwargs: SFDQN arguments of the learners, ``policy`` included
+    :param steps_per_iteration: default joint steps per iteration
+    :param iterations: default maximum number of iterations
+    :param n_test_weights: default number of Dirichlet(1) test weights of the GPI evaluation
+    :param value_episodes: episodes of each value estimate
+    :param eval_episodes: episodes per test weight of the GPI evaluation
+    :param value_mode: ``"joint"`` or ``"shared"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
+    :param gpi_set: ``"all"`` or ``"ccs"``
+    :param eval_workers: default number of evaluation processes
+    :param objectives: the objectives' names, one per reward component
+    :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions
+    :param episode_metrics: for ``compare`` and its plots: ``[info key, label]`` pairs read from the ``"episode"``
+        entry of the last info
+    :param step_metrics: ``[info key, label]`` pairs of the per-step infos, summed over agents
+    :param compare_weights: the weights ``compare`` evaluates GPI at by default
+    :param fixed_weights: the weights of the a priori scalarised reference runs
+    """
+
+    name: str
+    make_env: Callable[..., Any]
+    env_kwargs: dict[str, Any]
+    learner_kwargs: dict[str, Any]
+    steps_per_iteration: int
+    iterations: int
+    n_test_weights: int
+    value_episodes: int
+    eval_episodes: int
+    value_mode: str = "joint"
+    gpi_set: str = "all"
+    eval_workers: int = 0
+    objectives: list[str] | None = None
+    baselines: dict[str, dict[str, Any]] = field(default_factory=dict)
+    episode_metrics: list[list[str]] = field(default_factory=list)
+    step_metrics: list[list[str]] = field(default_factory=list)
+    compare_weights: list[list[float]] = field(default_factory=list)
+    fixed_weights: list[list[float]] = field(default_factory=list)
+
+    @classmethod
+    def from_dict(cls, name: str, data: Any) -> DomainPreset:
+        """
+        The preset of domain ``name`` from its entry point's data.
+
+        :raises UsageError: not a dict, an unknown or missing key, a value of the wrong kind
+        """
+        if not isinstance(data, dict):
+            raise UsageError(f"domain {name!r}: the preset must be a dict, got {type(data).__name__}")
+        known = {f.name: f for f in fields(cls) if f.name != "name"}
+        for key in data:
+            if key not in known:
+                raise UsageError(f"domain {name!r}: unknown preset key {key!r} (known: {', '.join(known)})")
+        missing = [key for key, spec in known.items() if _required(spec) and key not in data]
+        if missing:
+            raise UsageError(f"domain {name!r}: the preset lacks {missing[0]!r}")
+        preset = cls(name=name, **data)
+        preset._check()
+        return preset
+
+    def _check(self) -> None:
+        if not callable(self.make_env):
+            raise UsageError(f"domain {self.name!r}: make_env must be callable")
+        for key in ("env_kwargs", "learner_kwargs", "baselines"):
+            if not isinstance(getattr(self, key), dict):
+                raise UsageError(f"domain {self.name!r}: {key} must be a dict")
+        for key in ("steps_per_iteration", "iterations", "n_test_weights", "value_episodes", "eval_episodes"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise UsageError(f"domain {self.name!r}: {key} must be a positive integer, got {value!r}")
+        if "policy" not in self.learner_kwargs:
+            raise UsageError(f"domain {self.name!r}: learner_kwargs lacks 'policy'")
+
+
+def _required(spec: Field) -> bool:
+    return spec.default is MISSING and spec.default_factory is MISSING
+
+
+def available_domains() -> dict[str, EntryPoint]:
+    """Domain name -> entry point, from the ``sb3_sfgpi.domains`` entry-point group."""
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def load_domain(name: str) -> DomainPreset:
+    """
+    The preset of a domain.
+
+    :raises UsageError: unknown domain, or a preset with a missing or misspelt key
+    """
+    domains = available_domains()
+    if name not in domains:
+        raise UsageError(f"unknown domain {name!r}; available: {', '.join(sorted(domains)) or 'none installed'}")
+    return DomainPreset.from_dict(name, domains[name].load()())

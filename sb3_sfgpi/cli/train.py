@@ -1,0 +1,223 @@
+"""``sb3-sfgpi train DOMAIN``: MA-SFOLS + GPI (or Random + GPI, or fixed-weight learners) with a domain's preset."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
+from sb3_sfgpi.cli.presets import DomainPreset, load_domain
+from sb3_sfgpi.cli.values import check_weights, key_values
+from sb3_sfgpi.masfols import MASFOLS
+from sb3_sfgpi.run_directory import RunDirectory
+
+ALGORITHMS = {"ma-sfols": "ols", "random": "random"}  # --algo -> MASFOLS weights (fixed: the --w weights)
+
+
+def add_parser(sub: Any) -> None:
+    """The ``train`` sub-command's arguments."""
+    train = sub.add_parser("train", help="build a policy set with MA-SFOLS (or random weights)")
+    train.add_argument("domain", help="four-room, traffic, or another installed domain")
+    train.add_argument(
+        "--algo",
+        choices=["ma-sfols", "random", "fixed"],
+        default="ma-sfols",
+        help="ma-sfols: OLS corner weights; random: Dirichlet(1) weights; fixed: every agent learns for --w from "
+        "scratch (a priori scalarisation), in one iteration of iterations x steps-per-iteration steps",
+    )
+    train.add_argument("--w", type=float, nargs="+", help="the preference weights of --algo fixed")
+    train.add_argument(
+        "--budget-from",
+        type=Path,
+        metavar="RUN",
+        help="--algo fixed: train as many steps per agent as the run in RUN did (e.g. an MA-SFOLS run that OLS "
+        "ended before its iteration cap)",
+    )
+    train.add_argument("--iterations", type=int, help="maximum number of iterations (default: the domain's)")
+    train.add_argument("--steps-per-iteration", type=int, help="joint env steps per iteration (default: the domain's)")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--out", type=Path, help="run directory (default: runs/<domain>-<algo>-s<seed>)")
+    train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    train.add_argument("--transfer", action="store_true", help="start new learners from the best policy in the set")
+    train.add_argument("--no-progress", action="store_true", help="no progress bars")
+    train.add_argument(
+        "--env",
+        metavar="KEY=VALUE",
+        action="append",
+        default=[],
+        help="override an env argument of the domain (VALUE is read as JSON, else as a string), e.g. num_seconds=200",
+    )
+    train.add_argument("--learner", metavar="KEY=VALUE", action="append", default=[], help="override an SFDQN argument")
+    train.add_argument("--n-test-weights", type=int, help="test weights of the GPI evaluation (default: the domain's)")
+    train.add_argument(
+        "--torch-threads",
+        type=int,
+        default=1,
+        help="torch threads of the training process (default 1: the networks are small, and more threads only "
+        "contend with the simulator and the evaluation workers)",
+    )
+    train.add_argument(
+        "--eval-workers",
+        type=int,
+        help="evaluate GPI in this many worker processes, each with its own env (0: in the training process; "
+        "default: the domain's)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train (or continue) a run; print its last iteration."""
+    if args.torch_threads < 1:
+        raise UsageError(f"--torch-threads must be positive, got {args.torch_threads}")
+    preset = load_domain(args.domain)
+    config = _run_config(args, preset)
+    run_dir = RunDirectory(args.out or Path("runs") / _default_name(args, config))
+    if args.resume:
+        config = _resumed_config(args, run_dir, config)
+    elif run_dir.has_checkpoint():
+        raise UsageError(f"{run_dir} already holds a run: pass --resume to continue it or choose another --out")
+    eval_workers = preset.eval_workers if args.eval_workers is None else args.eval_workers
+    if eval_workers < 0:
+        raise UsageError(f"--eval-workers must be 0 or more, got {eval_workers}")
+    config["eval_workers"] = eval_workers  # does not change the results: may differ on resume
+
+    import torch as th
+
+    th.set_num_threads(args.torch_threads)
+    env = preset.make_env(**config["env_kwargs"])
+    model = _model(args, preset, env, run_dir, config)
+    try:
+        model.learn(config["iterations"], progress_bar=not args.no_progress)
+    except (RuntimeError, KeyboardInterrupt) as error:
+        raise TrainingStopped(_stopped_message(args, run_dir, model, error)) from error
+    finally:
+        model.close()
+    _print_result(run_dir, model)
+    return 0
+
+
+def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any]:
+    """What the run is, from the preset and the options: stored in ``run.json`` (the MASFOLS settings join it)."""
+    iterations = args.iterations or preset.iterations
+    steps_per_iteration = args.steps_per_iteration or preset.steps_per_iteration
+    n_test_weights = preset.n_test_weights if args.n_test_weights is None else args.n_test_weights
+    for name, value in (
+        ("--iterations", iterations),
+        ("--steps-per-iteration", steps_per_iteration),
+        ("--n-test-weights", n_test_weights),
+    ):
+        if value < 1:
+            raise UsageError(f"{name} must be positive, got {value}")
+    if args.algo != "fixed" and (args.w is not None or args.budget_from is not None):
+        raise UsageError("--w and --budget-from are only for --algo fixed")
+    if args.algo == "fixed" and args.w is None:
+        raise UsageError("--algo fixed needs the preference weights --w")
+    learner_kwargs = {**preset.learner_kwargs, **key_values(args.learner, "--learner")}
+    config = {
+        "domain": args.domain,
+        "algorithm": args.algo,
+        "seed": args.seed,
+        "iterations": iterations,
+        "steps_per_iteration": steps_per_iteration,
+        "transfer": args.transfer,
+        "env_kwargs": {**preset.env_kwargs, **key_values(args.env, "--env")},
+        "policy": learner_kwargs.pop("policy"),
+        "learner_kwargs": learner_kwargs,
+        "n_test_weights": n_test_weights,
+        "weights": ALGORITHMS.get(args.algo) or check_weights(args.w, "--w"),
+    }
+    if args.algo == "fixed":
+        config.update(_fixed_budget(args, iterations, steps_per_iteration))
+    return config
+
+
+def _fixed_budget(args: argparse.Namespace, iterations: int, steps_per_iteration: int) -> dict[str, Any]:
+    """The same number of steps per agent as an MA-SFOLS run of ``iterations`` iterations, in one iteration."""
+    budget: dict[str, Any] = {"iterations": iterations, "steps_per_iteration": steps_per_iteration}
+    steps = iterations * steps_per_iteration
+    if args.budget_from is not None:
+        source = RunDirectory(args.budget_from)
+        if not source.has_checkpoint():
+            raise UsageError(f"--budget-from: {args.budget_from} has no checkpoint")
+        steps = source.read_checkpoint()["timesteps"]
+        budget = {"from": str(args.budget_from), "timesteps": steps}
+    return {"iterations": 1, "steps_per_iteration": steps, "budget": budget}
+
+
+def _default_name(args: argparse.Namespace, config: dict[str, Any]) -> str:
+    weights = config["weights"]
+    tag = "" if isinstance(weights, str) else "-w" + "-".join(f"{x:g}" for x in np.round(weights, 4))
+    return f"{args.domain}-{args.algo}{tag}-s{args.seed}"
+
+
+def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dict[str, Any]) -> dict[str, Any]:
+    """The stored configuration with the new iteration cap; refuses options that would change the run."""
+    if not run_dir.is_run():
+        raise UsageError(f"--resume: {run_dir} is not a run directory (no {RunDirectory.RUN})")
+    saved = run_dir.read_config()
+    for option, key in (("--env", "env_kwargs"), ("--learner", "learner_kwargs")):
+        if getattr(args, option[2:]) and config[key] != saved.get(key):
+            raise UsageError(f"--resume: {option} would change the run's {key} ({saved.get(key)})")
+    for key in ("domain", "algorithm", "seed", "weights"):
+        if saved.get(key) != config.get(key):
+            raise UsageError(f"--resume: {run_dir} is a run with {key}={saved.get(key)!r}, not {config.get(key)!r}")
+    return {**saved, "iterations": config["iterations"]}
+
+
+def _model(
+    args: argparse.Namespace, preset: DomainPreset, env: Any, run_dir: RunDirectory, config: dict[str, Any]
+) -> MASFOLS:
+    """A new MASFOLS for the run, or the stored one continued (``--resume``)."""
+    workers = config["eval_workers"]
+    unstored = dict(
+        eval_workers=workers, eval_env_fn=preset.make_env if workers else None, eval_env_kwargs=config["env_kwargs"]
+    )
+    if args.resume:
+        run_dir.write_config(config)
+        return MASFOLS.load(run_dir.path, env, verbose=1, **unstored)
+    return MASFOLS(
+        env,
+        policy=config["policy"],
+        weights=config["weights"],
+        steps_per_iteration=config["steps_per_iteration"],
+        learner_kwargs=config["learner_kwargs"],
+        test_weights=config["n_test_weights"] if isinstance(config["weights"], str) else None,  # fixed: at --w
+        seed=config["seed"],
+        run_dir=run_dir.path,
+        value_mode=preset.value_mode,
+        value_episodes=preset.value_episodes,
+        eval_episodes=preset.eval_episodes,
+        gpi_set=preset.gpi_set,
+        transfer=config["transfer"],
+        run_info=config,
+        verbose=1,
+        **unstored,
+    )
+
+
+def _stopped_message(args: argparse.Namespace, run_dir: RunDirectory, model: MASFOLS, error: BaseException) -> str:
+    """One line: where training stopped, that the last checkpoint is intact, and the command that continues it."""
+    done = run_dir.read_checkpoint()["iteration"] if run_dir.has_checkpoint() else 0
+    reason = "interrupted" if isinstance(error, KeyboardInterrupt) else f"{type(error).__name__}: {error}"
+    reason = " ".join(reason.split())  # one line
+    weights = model.settings["weights"]
+    return (
+        f"training stopped in iteration {model.callback.iteration} ({reason}). The checkpoint of the last finished "
+        f"iteration ({done} done) in {run_dir} is intact: continue with "
+        f"`sb3-sfgpi train {args.domain} --algo {args.algo} --seed {args.seed} --out {run_dir} --resume`"
+        + ("" if isinstance(weights, str) else " --w " + " ".join(f"{x:g}" for x in weights))
+    )
+
+
+def _print_result(run_dir: RunDirectory, model: MASFOLS) -> None:
+    if not model.history:
+        print(f"{run_dir}: nothing to do")
+        return
+    last = model.history[-1]
+    print(
+        f"{run_dir}: {last['iteration'] + 1} iterations, |Π|={last['n_policies']}, CCS={last['ccs_size']}, "
+        f"mean w·return={last['mean_return']:.4f}, {last['wall_time']:.1f}s"
+        + (" (OLS ended: the set is a CCS)" if model.callback.ended_by_schedule else "")
+    )

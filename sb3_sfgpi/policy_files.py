@@ -1,0 +1,116 @@
+"""One SF network as plain data and tensors: its architecture (JSON) and what its policy file holds.
+
+A policy file holds the network's state dict (tensors only, read with ``weights_only=True``); a table is stored as
+its non-zero rows: ``"table.rows"`` (their indices), ``"table.values"`` (the rows) and ``"table.shape"`` instead of
+the dense ``"table.weight"`` (which is read too). Reading never runs code.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import FlattenExtractor
+from torch import nn
+
+from sb3_sfgpi.sfdqn.policies import SFNetwork, TabularSFNetwork
+
+_ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
+
+
+class CorruptPolicySetError(ValueError):
+    """A policy-set directory that cannot be loaded: missing, truncated, inconsistent or foreign files."""
+
+
+def network_spec(net: nn.Module) -> dict[str, Any]:
+    """
+    Plain-data description of an SF network's architecture (enough to rebuild it).
+
+    :raises ValueError: a network this format cannot describe
+    """
+    if isinstance(net, TabularSFNetwork):
+        return {"kind": "tabular"}
+    if isinstance(net, SFNetwork):
+        if type(net.features_extractor) is not FlattenExtractor or net.activation_fn.__name__ not in _ACTIVATIONS:
+            raise ValueError(
+                "the policy-set format stores MLP SF networks with FlattenExtractor and a standard activation "
+                f"({sorted(_ACTIVATIONS)}), got {type(net.features_extractor).__name__} / {net.activation_fn.__name__}"
+            )
+        return {
+            "kind": "mlp",
+            "net_arch": list(net.net_arch),
+            "activation_fn": net.activation_fn.__name__,
+            "normalize_images": bool(net.normalize_images),
+        }
+    raise ValueError(f"not an SF network: {type(net).__name__}")
+
+
+def build_network(
+    spec: dict[str, Any], observation_space: spaces.Space, action_space: spaces.Discrete, reward_dim: int
+) -> nn.Module:
+    """
+    A fresh SF network from :func:`network_spec` data.
+
+    :raises ValueError: unknown kind or activation
+    """
+    if spec.get("kind") == "tabular":
+        return TabularSFNetwork(observation_space, action_space, reward_dim)
+    if spec.get("kind") == "mlp":
+        if spec.get("activation_fn") not in _ACTIVATIONS:
+            known = sorted(_ACTIVATIONS)
+            raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {known}")
+        extractor = FlattenExtractor(observation_space)
+        return SFNetwork(
+            observation_space,
+            action_space,
+            extractor,
+            extractor.features_dim,
+            reward_dim,
+            net_arch=[int(n) for n in spec["net_arch"]],
+            activation_fn=_ACTIVATIONS[spec["activation_fn"]],
+            normalize_images=bool(spec.get("normalize_images", True)),
+        )
+    raise ValueError(f"unknown network kind {spec.get('kind')!r}")
+
+
+def read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
+    path = directory / file
+    if Path(file).name != file or not path.is_file():
+        raise CorruptPolicySetError(f"policy file {file!r} listed in the manifest of {directory} is missing")
+    try:
+        state = th.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many types for truncated files and refused pickles
+        raise CorruptPolicySetError(f"policy file {path} is unreadable or unsafe: {error}") from error
+    if not isinstance(state, dict) or not all(isinstance(v, th.Tensor) for v in state.values()):
+        raise CorruptPolicySetError(f"policy file {path} does not hold a state dict of tensors")
+    return state
+
+
+def file_state(net: nn.Module) -> dict[str, th.Tensor]:
+    """What a policy file holds: the network's state dict, a table's only by its non-zero rows (most stay zero)."""
+    state = {key: value.detach().cpu() for key, value in net.state_dict().items()}
+    if isinstance(net, TabularSFNetwork):
+        table = state.pop("table.weight")
+        rows = table.any(dim=1).nonzero().flatten()
+        state.update({"table.rows": rows, "table.values": table[rows], "table.shape": th.tensor(table.shape)})
+    return state
+
+
+def network_state(net: nn.Module, state: dict[str, th.Tensor]) -> dict[str, th.Tensor]:
+    """The state dict of ``net`` from what a policy file holds (the inverse of :func:`file_state`)."""
+    if not isinstance(net, TabularSFNetwork) or "table.weight" in state:
+        return state
+    state = dict(state)
+    rows, values, shape = state.pop("table.rows"), state.pop("table.values"), state.pop("table.shape")
+    expected = net.table.weight.shape
+    if tuple(shape.tolist()) != tuple(expected):
+        raise ValueError(f"the stored table has shape {tuple(shape.tolist())}, the network's is {tuple(expected)}")
+    if rows.dtype != th.long or rows.ndim != 1 or values.shape != (len(rows), expected[1]):
+        raise ValueError(f"stored table rows {tuple(rows.shape)} and values {tuple(values.shape)} do not match")
+    if len(rows) and (rows.min() < 0 or rows.max() >= expected[0]):
+        raise ValueError(f"stored table rows outside 0..{expected[0] - 1}")
+    table = th.zeros(expected, dtype=values.dtype)
+    table[rows] = values
+    return {**state, "table.weight": table}

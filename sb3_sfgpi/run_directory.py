@@ -1,0 +1,199 @@
+"""The run directory: where a run keeps its description, Π, evaluations, checkpoint and logs.
+
+Layout (no other module spells these names)::
+
+    run.json           what the run is: its settings (and, from the CLI, the domain and env arguments)
+    policy_set/        Π in the policy-set format of :class:`~sb3_sfgpi.gpi.GPIPolicy`
+    evaluation.json    per iteration: the summary row, the weights trained and, per test weight and agent, the
+                       vector returns of GPI (discounted and not) and the last infos
+    evaluation.csv     per iteration: the summary row
+    checkpoint.json    the schedule's state (OLS), next iteration and its weights, number of policies in Π
+    logs/              the runner's SB3 logger (progress.csv, TensorBoard scalars of OLS and GPI)
+    tensorboard/       the learners' TensorBoard logs, one folder per agent and iteration
+    compare.json       what ``sb3-sfgpi compare`` wrote (by default)
+
+Every file is written atomically. After an iteration, Π is written first (evaluation workers load it), then the
+evaluation files, and ``checkpoint.json`` last: it is what a resume trusts, so policies and rows beyond its counts
+(left by an iteration that was killed) are ignored.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import shutil
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch as th
+
+from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json, read_json
+from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
+
+#: The columns of ``evaluation.csv``, in order.
+SUMMARY_FIELDS = (
+    "iteration",
+    "timesteps",
+    "n_policies",
+    "ccs_size",
+    "mean_return",
+    "mean_return_undiscounted",
+    "expected_utility",
+    "hypervolume",
+    "wall_time",
+    "eval_time",
+)
+
+
+class RunDirectory:
+    """
+    The files of one run (see the module docstring for the layout).
+
+    :param path: the directory (created when something is first written)
+    """
+
+    RUN = "run.json"
+    CHECKPOINT = "checkpoint.json"
+    EVALUATION_JSON = "evaluation.json"
+    EVALUATION_CSV = "evaluation.csv"
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self._temporary = False
+
+    @classmethod
+    def temporary(cls) -> RunDirectory:
+        """A run directory in a new temporary folder, deleted by :meth:`remove_temporary`."""
+        run_dir = cls(tempfile.mkdtemp(prefix="sfgpi_run_"))
+        run_dir._temporary = True
+        return run_dir
+
+    def remove_temporary(self) -> None:
+        """Delete the folder if :meth:`temporary` made it (a no-op otherwise)."""
+        if self._temporary:
+            shutil.rmtree(self.path, ignore_errors=True)
+
+    def __repr__(self) -> str:
+        return f"RunDirectory({str(self.path)!r})"
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+    # --- paths ------------------------------------------------------------------------------------------------
+    @property
+    def policy_set_dir(self) -> Path:
+        return self.path / "policy_set"
+
+    @property
+    def logs_dir(self) -> Path:
+        return self.path / "logs"
+
+    @property
+    def tensorboard_dir(self) -> Path:
+        return self.path / "tensorboard"
+
+    @property
+    def compare_file(self) -> Path:
+        return self.path / "compare.json"
+
+    def is_run(self) -> bool:
+        """Whether the directory describes a run (has ``run.json``)."""
+        return (self.path / self.RUN).is_file()
+
+    def has_checkpoint(self) -> bool:
+        """Whether at least one iteration finished (``checkpoint.json`` exists)."""
+        return (self.path / self.CHECKPOINT).is_file()
+
+    def has_evaluations(self) -> bool:
+        return (self.path / self.EVALUATION_CSV).is_file()
+
+    def has_policy_set(self) -> bool:
+        return (self.policy_set_dir / MANIFEST).is_file()
+
+    # --- run.json ---------------------------------------------------------------------------------------------
+    def read_config(self) -> dict[str, Any]:
+        """
+        The run's description.
+
+        :raises ValueError: not a run directory, or a ``run.json`` that is not a JSON object
+        """
+        if not self.is_run():
+            raise ValueError(f"{self.path} is not a run directory (no {self.RUN})")
+        config = read_json(self.path / self.RUN, "run description")
+        if not isinstance(config, dict):
+            raise ValueError(f"run description {self.path / self.RUN} is not a JSON object")
+        return config
+
+    def write_config(self, config: dict[str, Any]) -> None:
+        atomic_write_json(self.path / self.RUN, config)
+
+    # --- Π ----------------------------------------------------------------------------------------------------
+    def save_policy_set(self, policy_set: GPIPolicy) -> None:
+        policy_set.save(self.policy_set_dir)
+
+    def load_policy_set(self, n_policies: int | None = None, device: th.device | str = "cpu") -> GPIPolicy:
+        """
+        Π as saved, or its first ``n_policies`` (those the checkpoint counts).
+
+        :raises ValueError: no policy set, or fewer policies than ``n_policies``
+        """
+        if not self.has_policy_set():
+            raise ValueError(f"{self.path} has no policy set yet")
+        policy_set = GPIPolicy.load(self.policy_set_dir, device=device)
+        if n_policies is None:
+            return policy_set
+        if n_policies > len(policy_set):
+            raise ValueError(f"{self.policy_set_dir} holds {len(policy_set)} policies, the checkpoint {n_policies}")
+        return policy_set.subset(range(n_policies))
+
+    # --- iterations -------------------------------------------------------------------------------------------
+    def write_iteration(self, history: Sequence[dict[str, Any]], checkpoint: dict[str, Any]) -> None:
+        """The evaluation files of every iteration so far, then ``checkpoint.json`` (last: a resume trusts it)."""
+        atomic_write_json(self.path / self.EVALUATION_JSON, list(history))
+        out = io.StringIO()
+        writer = csv.DictWriter(out, fieldnames=SUMMARY_FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(history)
+        atomic_write_bytes(self.path / self.EVALUATION_CSV, out.getvalue().encode())
+        atomic_write_json(self.path / self.CHECKPOINT, checkpoint)
+
+    def read_checkpoint(self) -> dict[str, Any]:
+        """
+        The last checkpoint, its structure checked.
+
+        :raises ValueError: missing, unreadable or malformed (naming the field)
+        """
+        path = self.path / self.CHECKPOINT
+        state = read_json(path, "checkpoint")
+        if not isinstance(state, dict):
+            raise ValueError(f"checkpoint {path} is not a JSON object")
+        for key in ("iteration", "timesteps", "n_policies"):
+            value = state.get(key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"checkpoint {path}: {key!r} must be a non-negative integer, got {value!r}")
+        if not isinstance(state.get("schedule"), dict) or not isinstance(state["schedule"].get("ols"), dict):
+            raise ValueError(f"checkpoint {path}: no 'schedule' state (written by another version of sb3-sfgpi?)")
+        next_weights = state.get("next_weights")
+        if next_weights is not None and not isinstance(next_weights, dict):
+            raise ValueError(f"checkpoint {path}: 'next_weights' must be null or an object, got {next_weights!r}")
+        return state
+
+    def read_history(self, n_iterations: int | None = None) -> list[dict[str, Any]]:
+        """The rows of ``evaluation.json``, or its first ``n_iterations`` (those the checkpoint counts)."""
+        history = read_json(self.path / self.EVALUATION_JSON, "evaluation")
+        if not isinstance(history, list) or (n_iterations is not None and len(history) < n_iterations):
+            raise ValueError(f"evaluation {self.path / self.EVALUATION_JSON} does not hold the checkpoint's rows")
+        return history if n_iterations is None else history[:n_iterations]
+
+    def read_summary(self) -> list[dict[str, str]]:
+        """
+        The rows of ``evaluation.csv`` (one per finished iteration, values as strings).
+
+        :raises ValueError: no evaluation yet
+        """
+        if not self.has_evaluations():
+            raise ValueError(f"{self.path} has no {self.EVALUATION_CSV} yet")
+        with open(self.path / self.EVALUATION_CSV, newline="") as handle:
+            return list(csv.DictReader(handle))

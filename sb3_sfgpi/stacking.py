@@ -1,0 +1,140 @@
+"""The networks of a policy set evaluated in one batched pass: ``ψ`` of every policy, shape ``(P, batch, A, d)``.
+
+* tables: one gather of the observed rows from a ``(S, P·A·d)`` stack of the tables' learned rows;
+* MLPs (parameter-free features extractor, ``Linear`` layers and activations): the features are extracted once and
+  every layer is one batched matrix product over the ``P`` networks;
+* anything else: ``torch.func.stack_module_state`` + ``vmap`` over ``functional_call``.
+
+The three give the same ``ψ`` (the specialised ones skip the per-call overhead of ``vmap``, about a millisecond per
+decision; see ``benchmarks/bench_gpi.py``).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import torch as th
+from torch import nn
+from torch.func import functional_call, stack_module_state
+
+from sb3_sfgpi.policy_files import _ACTIVATIONS
+from sb3_sfgpi.sfdqn.policies import SFNetwork, TabularSFNetwork
+
+
+class StackedTables:
+    """
+    The tables of a tabular set, stacked state-major: row ``k`` holds ``ψ^π(s, ·)`` of every policy ``π`` for the
+    ``k``-th state that some policy has learned (a non-zero row), and one last row of zeros serves every other state.
+
+    Tables of large observation spaces are mostly zero (the Four-Room with object flags: under 1% of the rows), so
+    the stack holds the learned rows only. ``ψ`` of a batch is one gather of its rows (``P·A·d`` contiguous floats
+    per observation).
+    """
+
+    def __init__(self, networks: list[TabularSFNetwork]):
+        first = networks[0]
+        self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
+        self.n_states = first.table.num_embeddings
+        self.state_index, self.rows = first.state_index, first.rows
+        with th.no_grad():
+            learned = th.stack([net.table.weight.any(dim=1) for net in networks]).any(dim=0).nonzero().flatten()
+            self.stack_row = th.full((self.n_states,), len(learned), dtype=th.long, device=learned.device)
+            self.stack_row[learned] = th.arange(len(learned), device=learned.device)
+            width = self.n_policies * self.n_actions * self.reward_dim
+            rows = th.stack([net.table.weight[learned] for net in networks], dim=1).reshape(len(learned), width)
+            self.tables = th.cat([rows, rows.new_zeros(1, rows.shape[1])])
+        cpu = self.tables.device.type == "cpu"
+        self.tables_numpy = self.tables.numpy() if cpu else None
+        self.stack_row_numpy = self.stack_row.numpy() if cpu else None
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        rows = self.tables.index_select(0, self.stack_row[self.state_index(obs_tensor)])
+        return rows.view(-1, self.n_policies, self.n_actions, self.reward_dim).transpose(0, 1)
+
+    def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """GPI action values of a batch, in numpy (CPU sets): cheaper than torch for a few small operations."""
+        assert self.tables_numpy is not None
+        index = self.rows(obs)
+        if index.size and (index.min() < 0 or index.max() >= self.n_states):
+            raise IndexError(f"observation outside the table ({self.n_states} rows): {obs.tolist()}")
+        rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
+        return (rows @ weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
+
+
+class StackedMLP:
+    """
+    MLP SF networks stacked layer by layer: weights ``(P, in, out)``, biases ``(P, 1, out)``.
+
+    The features extractor has no parameters, so the features are computed once and shared; each ``Linear``
+    of the ``P`` networks is then one ``baddbmm``.
+    """
+
+    def __init__(self, networks: list[SFNetwork]):
+        first = networks[0]
+        self.first = first
+        self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
+        self.layers: list[tuple[th.Tensor, th.Tensor] | nn.Module] = []
+        with th.no_grad():
+            for i, module in enumerate(first.sf_net):
+                if isinstance(module, nn.Linear):
+                    linears = [net.sf_net[i] for net in networks]
+                    weight = th.stack([lin.weight.transpose(0, 1) for lin in linears]).contiguous()
+                    bias = th.stack([lin.bias for lin in linears]).unsqueeze(1)
+                    self.layers.append((weight, bias))
+                else:
+                    self.layers.append(module)
+
+    @staticmethod
+    def supports(net: nn.Module) -> bool:
+        """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
+        if not isinstance(net, SFNetwork) or not isinstance(net.sf_net, nn.Sequential):
+            return False
+        extractor = net.features_extractor
+        if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):
+            return False
+        allowed = tuple(_ACTIVATIONS.values())
+        for module in net.sf_net:
+            if isinstance(module, nn.Linear):
+                if module.bias is None:
+                    return False
+            elif type(module) not in allowed:
+                return False
+        return True
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        features = self.first.extract_features(obs_tensor, self.first.features_extractor)
+        n_policies = self.n_policies
+        x = features.unsqueeze(0).expand(n_policies, *features.shape)
+        for layer in self.layers:
+            if isinstance(layer, tuple):
+                x = th.baddbmm(layer[1], x, layer[0])
+            else:
+                x = layer(x)
+        return x.view(n_policies, -1, self.n_actions, self.reward_dim)
+
+
+class StackedVmap:
+    """Any networks of one architecture: ``stack_module_state`` + ``vmap`` over ``functional_call``."""
+
+    def __init__(self, networks: list[nn.Module]):
+        self.params, self.buffers = stack_module_state(networks)  # type: ignore[arg-type]
+        self.skeleton = copy.deepcopy(networks[0]).to("meta")
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        skeleton = self.skeleton
+
+        def one(p: dict[str, th.Tensor], b: dict[str, th.Tensor], x: th.Tensor) -> th.Tensor:
+            return functional_call(skeleton, (p, b), (x,))
+
+        return th.vmap(one, in_dims=(0, 0, None))(self.params, self.buffers, obs_tensor)
+
+
+def stack_networks(networks: list[nn.Module]) -> StackedTables | StackedMLP | StackedVmap:
+    """The fastest batched evaluator that fits the networks (all of one architecture)."""
+    first = networks[0]
+    if isinstance(first, TabularSFNetwork):
+        return StackedTables(networks)  # type: ignore[arg-type]
+    if StackedMLP.supports(first):
+        return StackedMLP(networks)  # type: ignore[arg-type]
+    return StackedVmap(networks)

@@ -1,0 +1,189 @@
+"""MASFOLS: learn, the exact CCS on the parallel chain, run.json, continuing a run, fixed weights."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from momdp import REWARDS, TERMINAL
+from parallel_chain import ParallelChainEnv, optimal_value
+
+from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.masfols import MASFOLS, SETTINGS
+
+#: The tabular learner of tests/test_multiagent.py (its LEARNER, without the policy).
+LEARNER_KWARGS = dict(
+    learning_rate=0.3,
+    gamma=1.0,
+    exploration_initial_eps=1.0,
+    exploration_fraction=0.6,
+    exploration_final_eps=0.1,
+    learning_starts=0,
+    train_freq=1,
+    batch_size=16,
+    buffer_size=10_000,
+)
+TEST_WEIGHTS = random_weights(2, 5, rng=0)
+OBS = np.arange(5)
+
+
+def make(steps: int = 300, n_agents: int = 2, **kwargs) -> MASFOLS:
+    kwargs = {"test_weights": TEST_WEIGHTS, **kwargs}
+    return MASFOLS(
+        ParallelChainEnv(n_agents),
+        policy="TabularPolicy",
+        steps_per_iteration=steps,
+        learner_kwargs=LEARNER_KWARGS,
+        **kwargs,
+    )
+
+
+def chain_return(policies: GPIPolicy, w) -> np.ndarray:
+    """The undiscounted vector return on one chain of an agent acting by GPI over ``policies`` for ``w``."""
+    total = np.zeros(2)
+    for state in range(TERMINAL):
+        action = int(policies.predict(state, w)[0])
+        total += REWARDS[state, action]
+    return total
+
+
+def assert_same_policy_sets(a: GPIPolicy, b: GPIPolicy) -> None:
+    assert len(a) == len(b) > 0
+    for info_a, info_b in zip(a.infos, b.infos, strict=True):
+        np.testing.assert_allclose(info_a.weights, info_b.weights)
+        np.testing.assert_allclose(info_a.value, info_b.value)
+        assert (info_a.agent, info_a.iteration) == (info_b.agent, info_b.iteration)
+    np.testing.assert_allclose(a.successor_features(OBS), b.successor_features(OBS))
+
+
+def test_learn_returns_self_and_fills_history_and_policy_set():
+    model = make(steps=100, weights="random")
+    assert model.learn(max_iterations=2) is model
+    assert [row["iteration"] for row in model.history] == [0, 1]
+    assert [row["timesteps"] for row in model.history] == [100, 200]
+    assert len(model.policy_set) >= 1 and model.history[-1]["n_policies"] == len(model.policy_set)
+    for row in model.history:
+        assert set(row["weights_trained"]) == {"agent_0", "agent_1"}
+        assert [entry["weights"] for entry in row["test"]] == TEST_WEIGHTS.tolist()
+        assert np.isfinite(row["mean_return"])
+    assert {info.agent for info in model.policy_set.infos} <= {"agent_0", "agent_1"}
+
+
+def test_ols_finds_the_optimum_and_stops_before_the_cap():
+    model = make(steps=600).learn(max_iterations=10)
+    assert len(model.history) < 10 and model.callback.ended_by_schedule
+    assert model.callback.schedule.ols.next_weight() is None
+    assert model.history[0]["weights_trained"] == {"agent_0": [1.0, 0.0], "agent_1": [0.0, 1.0]}
+    for w0 in np.linspace(0, 1, 21):
+        w = np.array([w0, 1 - w0])
+        assert model.policy_set.q_values(np.array([0]), w).max() == pytest.approx(optimal_value(w), abs=1e-3)
+    for entry in model.history[-1]["test"]:  # GPI reaches the optimum in the env too, for both agents
+        for returns in entry["agents"].values():
+            assert np.dot(entry["weights"], returns["undiscounted"]) == pytest.approx(optimal_value(entry["weights"]))
+
+
+def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
+    model = make(steps=50, weights="random", seed=4, run_dir=tmp_path, run_info={"domain": "chain"})
+    model.learn(max_iterations=2)
+    config = json.loads((tmp_path / "run.json").read_text())
+    assert set(SETTINGS) <= set(config) and config["domain"] == "chain"
+    assert {key: config[key] for key in SETTINGS} == json.loads(json.dumps(model.settings))
+    assert config["policy"] == "TabularPolicy" and config["weights"] == "random"
+    assert config["steps_per_iteration"] == 50 and config["seed"] == 4
+    assert config["learner_kwargs"] == LEARNER_KWARGS
+    np.testing.assert_allclose(config["test_weights"], TEST_WEIGHTS)
+    checkpoint = json.loads((tmp_path / "checkpoint.json").read_text())
+    assert (checkpoint["iteration"], checkpoint["timesteps"]) == (2, 100)
+    assert checkpoint["n_policies"] == len(model.policy_set)
+    assert len(json.loads((tmp_path / "evaluation.json").read_text())) == 2
+    assert_same_policy_sets(GPIPolicy.load(tmp_path / "policy_set"), model.policy_set)
+    assert (tmp_path / "logs" / "progress.csv").is_file()
+
+
+@pytest.mark.parametrize("weights", ["ols", "random"])
+def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, weights):
+    kwargs = dict(steps=300, weights=weights, seed=3)
+    whole = make(**kwargs, run_dir=tmp_path / "whole").learn(max_iterations=3)
+
+    make(**kwargs, run_dir=tmp_path / "cut").learn(max_iterations=1)
+    continued = MASFOLS.load(tmp_path / "cut", ParallelChainEnv(2))
+    assert continued.settings == whole.settings
+    continued.learn(max_iterations=3)
+
+    assert len(continued.history) == len(whole.history) >= 2  # the continued run did iterate after the load
+    assert [r["mean_return"] for r in continued.history] == [r["mean_return"] for r in whole.history]
+    assert [r["weights_trained"] for r in continued.history] == [r["weights_trained"] for r in whole.history]
+    assert_same_policy_sets(continued.policy_set, whole.policy_set)
+    assert_same_policy_sets(GPIPolicy.load(tmp_path / "cut" / "policy_set"), whole.policy_set)
+    assert json.loads((tmp_path / "cut" / "checkpoint.json").read_text())["iteration"] == len(whole.history)
+
+
+def test_fixed_weights_evaluate_each_agent_on_its_own_policies_and_keep_every_policy():
+    model = make(steps=200, weights=[0.3, 0.7], test_weights=None).learn(max_iterations=3)  # tested at [0.3, 0.7]
+    assert len(model.history) == 3  # fixed weights never end by themselves
+    assert len(model.policy_set) == 3 * 2  # every policy of every agent, duplicate values included
+    assert len(model.callback.schedule.ols.values) < len(model.policy_set)  # there were duplicates
+    for info in model.policy_set.infos:
+        np.testing.assert_allclose(info.weights, [0.3, 0.7])
+    for row in model.history:
+        assert row["weights_trained"] == {"agent_0": [0.3, 0.7], "agent_1": [0.3, 0.7]}
+        (entry,) = row["test"]
+        assert entry["weights"] == [0.3, 0.7]
+    for agent, returns in model.history[-1]["test"][0]["agents"].items():
+        own = model.policy_set.agent_policies(agent)
+        assert {info.agent for info in own.infos} == {agent}
+        np.testing.assert_allclose(returns["undiscounted"], chain_return(own, [0.3, 0.7]))
+
+
+def test_learn_refuses_a_run_dir_that_already_holds_a_run(tmp_path):
+    make(steps=20, weights="random", run_dir=tmp_path).learn(max_iterations=1)
+    config = (tmp_path / "run.json").read_bytes()
+    again = make(steps=20, weights="random", run_dir=tmp_path)
+    with pytest.raises(ValueError, match="already holds a run"):
+        again.learn(max_iterations=1)
+    assert (tmp_path / "run.json").read_bytes() == config  # the run's description is not overwritten
+
+
+@pytest.mark.parametrize("weights", ["greedy", "OLS", ""])
+def test_a_bad_weights_string_is_refused(weights):
+    with pytest.raises(ValueError, match="'ols', 'random'"):
+        make(weights=weights)
+
+
+def test_load_refuses_a_directory_that_is_not_a_run(tmp_path):
+    with pytest.raises(ValueError, match="not a run directory"):
+        MASFOLS.load(tmp_path, ParallelChainEnv(2))
+    (tmp_path / "run.json").write_text(json.dumps({"domain": "chain", "seed": 0}))
+    with pytest.raises(ValueError, match="lacks the settings"):
+        MASFOLS.load(tmp_path, ParallelChainEnv(2))
+
+
+def test_a_second_learn_continues_or_is_refused():
+    model = make(steps=100, weights="random").learn(max_iterations=1)
+    try:
+        model.learn(max_iterations=2)  # "iterations in all, those of a continued run included"
+    except ValueError:
+        return  # refusing is fine too
+    assert len(model.history) == 2
+    assert model.runner.num_timesteps == 200
+    assert len(model.callback.schedule.ols.values) >= 1  # the values of Π are still recorded
+
+
+# --- known problems (strict xfail: remove the mark once fixed) --------------------------------------------------
+@pytest.mark.xfail(
+    strict=True,
+    reason="MASFOLS.__init__ configures SB3's CSV logger on run_dir/logs, which opens progress.csv with mode 'w+': "
+    "building a MASFOLS on an existing run (refused, or MASFOLS.load) truncates the run's logs",
+)
+def test_an_existing_runs_logs_survive_a_refused_learn_and_a_load(tmp_path):
+    make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=2)
+    progress = tmp_path / "logs" / "progress.csv"
+    before = progress.read_text()
+    assert len(before.splitlines()) == 3  # header and one row per iteration
+    with pytest.raises(ValueError, match="already holds a run"):
+        make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=2)
+    assert progress.read_text() == before
+    MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=3)
+    assert len(progress.read_text().splitlines()) == 4

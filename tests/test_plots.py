@@ -1,0 +1,246 @@
+"""The figures: GPI return over iterations from run directories, and the comparison plots from a comparison dict."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sb3_sfgpi import plots
+from sb3_sfgpi.run_directory import RunDirectory
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+STEP_METRICS = [["vehicle_wait_total", "vehicle waiting time [s]"], ["pedestrian_wait_total", "pedestrian wait [s]"]]
+EPISODE_METRICS = [["vehicle_mean", "mean vehicle waiting time [s]"], ["pedestrian_mean", "mean pedestrian wait [s]"]]
+TIME = [5.0, 10.0, 15.0, 20.0, 25.0, 30.0]
+
+
+@pytest.fixture
+def figures(monkeypatch) -> list[dict]:
+    """What every figure saved shows: per axes its labels, title and lines (the real ``_save`` still writes)."""
+    seen: list[dict] = []
+    real_save = plots._save
+
+    def recording(fig, output):
+        axes = [
+            {
+                "xlabel": ax.get_xlabel(),
+                "ylabel": ax.get_ylabel(),
+                "title": ax.get_title(),
+                "ylim": ax.get_ylim(),
+                "lines": [(line.get_label(), line.get_xydata().copy()) for line in ax.get_lines()],
+                "legend": [text.get_text() for text in ax.get_legend().get_texts()] if ax.get_legend() else [],
+            }
+            for ax in fig.axes
+        ]
+        seen.append({"output": output, "axes": axes})
+        return real_save(fig, output)
+
+    monkeypatch.setattr(plots, "_save", recording)
+    return seen
+
+
+def write_run(path, mean_returns, hypervolumes=None) -> RunDirectory:
+    run_dir = RunDirectory(path)
+    history = []
+    for i, value in enumerate(mean_returns):
+        history.append(
+            {
+                "iteration": i,
+                "timesteps": 100 * (i + 1),
+                "n_policies": i + 1,
+                "ccs_size": i + 1,
+                "mean_return": value,
+                "mean_return_undiscounted": value,
+                "expected_utility": value,
+                "hypervolume": None if hypervolumes is None else hypervolumes[i],
+                "wall_time": float(i),
+                "eval_time": 0.1,
+            }
+        )
+    run_dir.write_iteration(history, {"iteration": len(history), "timesteps": 0, "n_policies": 0})
+    return run_dir
+
+
+def assert_png(path) -> None:
+    assert path.is_file() and path.read_bytes()[:8] == PNG_MAGIC
+
+
+# --- plot_returns -----------------------------------------------------------------------------------------------
+def test_plot_returns_draws_the_mean_over_seeds_with_labelled_axes(tmp_path, figures):
+    long = write_run(tmp_path / "a", [1.0, 2.0, 3.0])
+    short = write_run(tmp_path / "b", [3.0, 4.0])  # ended after two iterations: keeps 4.0 at iteration 3
+    other = write_run(tmp_path / "c", [0.5, 0.5, 1.5])
+    output = tmp_path / "figs" / "returns.png"
+    result = plots.plot_returns([("ma-sfols", long), ("ma-sfols", short), ("random", other)], output)
+    assert result == output
+    assert_png(output)
+    (figure,) = figures
+    (ax,) = figure["axes"]
+    assert ax["xlabel"] == "iteration" and ax["ylabel"] == "mean return"
+    assert ax["title"] == "GPI over the policy set, mean over test weights and agents"
+    assert ax["legend"] == ["MA-SFOLS + GPI (2 seeds)", "Random + GPI (1 seed)"]
+    lines = dict(ax["lines"])
+    np.testing.assert_allclose(lines["MA-SFOLS + GPI (2 seeds)"], [[1, 2.0], [2, 3.0], [3, 3.5]])
+    np.testing.assert_allclose(lines["Random + GPI (1 seed)"], [[1, 0.5], [2, 0.5], [3, 1.5]])
+
+
+def test_plot_returns_of_another_metric_skips_empty_cells(tmp_path, figures):
+    run = write_run(tmp_path / "a", [1.0, 2.0, 3.0], hypervolumes=[None, 10.0, 12.0])
+    output = plots.plot_returns([("fixed", run)], tmp_path / "hv.png", metric="hypervolume", title="my title")
+    assert_png(output)
+    (ax,) = figures[0]["axes"]
+    assert (ax["xlabel"], ax["ylabel"], ax["title"]) == ("iteration", "hypervolume", "my title")
+    np.testing.assert_allclose(ax["lines"][0][1], [[2, 10.0], [3, 12.0]])
+    assert ax["legend"] == ["fixed-weight learners (1 seed)"]
+
+
+def test_plot_returns_needs_evaluations(tmp_path):
+    with pytest.raises(ValueError, match="no evaluation.csv"):
+        plots.plot_returns([("ma-sfols", RunDirectory(tmp_path))], tmp_path / "x.png")
+
+
+# --- comparison plots -------------------------------------------------------------------------------------------
+def trace(level: float, slope: float) -> dict:
+    mean = [level + slope * t for t in range(len(TIME))]
+    return {"mean": mean, "std": [0.5] * len(TIME)}
+
+
+def compare_row(method: str, weights, label: str, vehicles: float, pedestrians: float) -> dict:
+    return {
+        "method": method,
+        "label": label,
+        "run_dir": None,
+        "weights": weights,
+        "return_discounted": [-vehicles, -pedestrians],
+        "return_undiscounted": [-vehicles, -pedestrians],
+        "scalarized_discounted": None if weights is None else -float(np.dot(weights, [vehicles, pedestrians])),
+        "agents": {},
+        "episode_metrics": {
+            "vehicle_mean": {"mean": vehicles, "std": 1.0},
+            "pedestrian_mean": {"mean": pedestrians, "std": 2.0},
+        },
+        "traces": {
+            "time": TIME,
+            "vehicle_wait_total": trace(vehicles, 1.0),
+            "pedestrian_wait_total": trace(pedestrians, -1.0),
+        },
+    }
+
+
+@pytest.fixture
+def compare() -> dict:
+    """A small comparison in the format of ``sb3-sfgpi compare`` (see :mod:`sb3_sfgpi.cli.compare`)."""
+    return {
+        "format": "sb3-sfgpi/compare",
+        "version": 1,
+        "domain": "traffic",
+        "objectives": ["vehicles", "pedestrians"],
+        "episode_metrics": EPISODE_METRICS,
+        "step_metrics": STEP_METRICS,
+        "rows": [
+            compare_row("gpi", [1.0, 0.0], "GPI w=[1, 0]", 10.0, 40.0),
+            compare_row("gpi", [0.5, 0.5], "GPI w=[0.5, 0.5]", 20.0, 20.0),
+            compare_row("gpi", [0.0, 1.0], "GPI w=[0, 1]", 40.0, 10.0),
+            compare_row("fixed", [0.5, 0.5], "scalarized w=[0.5, 0.5]", 22.0, 21.0),
+            compare_row("baseline", None, "fixed-time", 30.0, 30.0),
+        ],
+    }
+
+
+def test_plot_step_metrics_draws_every_objective_and_its_zoom(tmp_path, compare, figures):
+    written = plots.plot_step_metrics(compare, tmp_path / "steps", smooth=1)
+    names = ["steps_vehicles.png", "steps_vehicles_zoom.png", "steps_pedestrians.png", "steps_pedestrians_zoom.png"]
+    assert [p.name for p in written] == names
+    for path in written:
+        assert_png(path)
+    for figure, (_, label) in zip(figures, [STEP_METRICS[0]] * 2 + [STEP_METRICS[1]] * 2, strict=True):
+        (ax,) = figure["axes"]
+        assert ax["xlabel"] == "simulated time [s]"
+        assert ax["ylabel"] == label  # smooth=1: the raw metric
+        assert label.split(" [")[0] in ax["title"]
+        assert len(ax["lines"]) == 3  # one curve per GPI weight, none for the fixed learner or the baseline
+        for _, xy in ax["lines"]:
+            np.testing.assert_allclose(xy[:, 0], TIME)
+    # Curves are in the order of the objective's weight, labelled by it.
+    assert figures[0]["axes"][0]["legend"] == ["w0 = 0.00", "w0 = 0.50", "w0 = 1.00"]
+    assert figures[2]["axes"][0]["legend"] == ["w1 = 0.00", "w1 = 0.50", "w1 = 1.00"]
+    # The zoom on vehicles shows the curves with w0 >= 0.5 (levels 10 and 20, rising by 1 per step).
+    low, high = figures[1]["axes"][0]["ylim"]
+    assert 9.0 < low <= 10.0 and 25.0 <= high < 26.0
+    assert "zoom" in figures[1]["axes"][0]["title"] and "zoom" not in figures[0]["axes"][0]["title"]
+
+
+def test_plot_step_metrics_smoothing_is_named_in_the_label(tmp_path, compare, figures):
+    plots.plot_step_metrics(compare, tmp_path, smooth=2)
+    assert figures[0]["axes"][0]["ylabel"] == "vehicle waiting time [s], mean over 10 s"
+    first = figures[0]["axes"][0]["lines"][0][1][:, 1]  # w0 = 0: level 40, rising by 1
+    np.testing.assert_allclose(first, [40.0, 40.5, 41.5, 42.5, 43.5, 44.5])
+
+
+def test_plot_versus_draws_gpi_against_each_fixed_learner_per_objective(tmp_path, compare, figures):
+    written = plots.plot_versus(compare, tmp_path / "versus", smooth=1)
+    assert [p.name for p in written] == ["versus_w0.5-0.5.png"]
+    assert_png(written[0])
+    (figure,) = figures
+    assert len(figure["axes"]) == 2  # one panel per objective
+    for ax, (_, label), name in zip(figure["axes"], STEP_METRICS, ["vehicles", "pedestrians"], strict=True):
+        assert ax["xlabel"] == "simulated time [s]" and ax["ylabel"] == label
+        assert ax["title"] == f"w = [0.5, 0.5] ({name})"
+        assert ax["legend"] == ["MA-SFOLS + GPI", "scalarized w=[0.5, 0.5]", "fixed-time"]
+    gpi_vehicles = dict(figure["axes"][0]["lines"])["MA-SFOLS + GPI"]
+    np.testing.assert_allclose(gpi_vehicles[:, 1], trace(20.0, 1.0)["mean"])
+
+
+def test_plot_tradeoff_puts_the_two_episode_metrics_on_the_axes(tmp_path, compare, figures):
+    output = plots.plot_tradeoff(compare, tmp_path / "tradeoff.png")
+    assert_png(output)
+    (ax,) = figures[0]["axes"]
+    assert ax["xlabel"] == EPISODE_METRICS[0][1] and ax["ylabel"] == EPISODE_METRICS[1][1]
+    assert ax["legend"] == ["MA-SFOLS + GPI", "scalarized w=[0.5, 0.5]", "fixed-time"]
+    gpi = ax["lines"][0][1]  # errorbar's data line (the label is its container's); in the order of w
+    np.testing.assert_allclose(gpi, [[40.0, 10.0], [20.0, 20.0], [10.0, 40.0]])
+    points = {tuple(xy[0]) for _, xy in ax["lines"] if len(xy) == 1}  # the other methods: one marker each
+    assert {(22.0, 21.0), (30.0, 30.0)} <= points
+
+
+def test_comparison_plots_refuse_what_they_cannot_draw(tmp_path, compare):
+    no_fixed = {**compare, "rows": [r for r in compare["rows"] if r["method"] != "fixed"]}
+    with pytest.raises(ValueError, match="no fixed-weight learners"):
+        plots.plot_versus(no_fixed, tmp_path)
+    no_gpi = {**compare, "rows": [r for r in compare["rows"] if r["method"] != "gpi"]}
+    with pytest.raises(ValueError, match="no GPI rows"):
+        plots.plot_step_metrics(no_gpi, tmp_path)
+    with pytest.raises(ValueError, match="two episode metrics"):
+        plots.plot_tradeoff({**compare, "episode_metrics": EPISODE_METRICS[:1]}, tmp_path / "x.png")
+    no_trace = {**compare, "step_metrics": [["queue", "queue length"]]}
+    with pytest.raises(ValueError, match="no per-step 'queue'"):
+        plots.plot_step_metrics(no_trace, tmp_path)
+    assert not list(tmp_path.glob("*.png"))
+
+
+# --- align_runs and moving_average ------------------------------------------------------------------------------
+def test_align_runs_forward_fills_runs_that_ended_early():
+    values = plots.align_runs([{1: 1.0, 2: 2.0, 3: 5.0}, {1: 3.0}, {1: 0.0, 2: -1.0}])
+    np.testing.assert_allclose(values, [[1.0, 2.0, 5.0], [3.0, 3.0, 3.0], [0.0, -1.0, -1.0]])
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.lists(st.floats(-1e6, 1e6), min_size=1, max_size=8), min_size=1, max_size=5))
+def test_align_runs_keeps_each_run_and_then_its_last_value(runs):
+    aligned = plots.align_runs([{i + 1: v for i, v in enumerate(run)} for run in runs])
+    longest = max(len(run) for run in runs)
+    assert aligned.shape == (len(runs), longest)
+    for row, run in zip(aligned, runs, strict=True):
+        np.testing.assert_array_equal(row, run + [run[-1]] * (longest - len(run)))
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3), max_size=30), st.integers(-1, 12))
+def test_moving_average_is_the_trailing_mean(values, window):
+    smoothed = plots.moving_average(np.array(values), window)
+    assert smoothed.shape == (len(values),)
+    for i in range(len(values)):
+        expected = values[i] if window <= 1 else np.mean(values[max(0, i + 1 - window) : i + 1])
+        assert smoothed[i] == pytest.approx(expected, abs=1e-6)
