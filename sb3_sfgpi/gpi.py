@@ -33,6 +33,7 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.utils import is_vectorized_observation
 from torch import nn
 
+from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.rollouts import JointPolicy
 from sb3_sfgpi.common.serialization import (
     atomic_write_bytes,
@@ -51,6 +52,7 @@ from sb3_sfgpi.policy_files import (
     network_state,
     read_state_dict,
 )
+from sb3_sfgpi.sfdqn.policies import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap, stack_networks
 
@@ -92,11 +94,14 @@ class GPIPolicy:
     A set of successor-feature policies acting by generalized policy improvement.
 
     :param models: SFDQN models to put in the set (their current networks are copied)
-    :param device: where the stacked networks live
+    :param device: where the networks live, resolved when the first one is added (see
+        :func:`~sb3_sfgpi.common.device.resolve_device`): ``"auto"`` keeps tables on the CPU and puts MLPs on
+        CUDA where available. The default is the CPU: GPI acts one decision at a time, faster there.
     """
 
     def __init__(self, models: Iterable[SFDQN] = (), device: th.device | str = "cpu"):
-        self.device = th.device(device)
+        self._device_request = device
+        self._device: th.device | None = None
         self.networks: list[nn.Module] = []
         self.infos: list[PolicyInfo] = []
         self._stacked: StackedTables | StackedMLP | StackedVmap | None = None
@@ -106,6 +111,27 @@ class GPIPolicy:
 
     def __len__(self) -> int:
         return len(self.networks)
+
+    @property
+    def device(self) -> th.device:
+        """Where the networks live (an empty set: where MLPs would go)."""
+        return resolve_device(self._device_request) if self._device is None else self._device
+
+    def to(self, device: th.device | str) -> GPIPolicy:
+        """
+        Move the set to another device (resolved as in the constructor).
+
+        :return: the set itself
+        :raises ValueError: a tabular set on a device other than the CPU
+        """
+        if self.networks:
+            self._device = resolve_device(device, tabular=isinstance(self.networks[0], TabularSFNetwork))
+            for net in self.networks:
+                net.to(self._device)
+        self._device_request = device
+        self._stacked = None
+        self._weights_cache = None
+        return self
 
     @property
     def reward_dim(self) -> int:
@@ -163,7 +189,9 @@ class GPIPolicy:
         reward_dim = net.reward_dim
         w = validate_weights(weights, reward_dim)
         v = None if value is None else np.asarray(value, dtype=np.float64).reshape(reward_dim)
-        copied = copy.deepcopy(net).to(self.device)
+        if self._device is None:
+            self._device = resolve_device(self._device_request, tabular=isinstance(net, TabularSFNetwork))
+        copied = copy.deepcopy(net).to(self._device)
         copied.set_training_mode(False)
         for parameter in copied.parameters():
             parameter.requires_grad_(False)
@@ -376,8 +404,10 @@ class GPIPolicy:
         Read a policy-set directory written by :meth:`save`.
 
         :param path: the directory
-        :param device: where to put the networks
+        :param device: where to put the networks, as in the constructor; the files are read on the CPU, so a set
+            saved on one device loads on any other
         :raises CorruptPolicySetError: a missing, truncated, inconsistent or foreign directory
+        :raises ValueError: a tabular set on a device other than the CPU
         """
         directory = Path(path)
         try:
@@ -391,7 +421,7 @@ class GPIPolicy:
             action_space = space_from_dict(manifest["action_space"])
             if not isinstance(action_space, spaces.Discrete):
                 raise ValueError(f"the action space must be Discrete, got {action_space}")
-            policy_set = cls(device=device)
+            policy_set = cls(device="cpu")
             for entry in manifest["policies"]:
                 net = build_network(manifest["network"], observation_space, action_space, reward_dim)
                 net.load_state_dict(network_state(net, read_state_dict(directory, entry["file"])))
@@ -406,4 +436,4 @@ class GPIPolicy:
             raise
         except (KeyError, TypeError, ValueError, RuntimeError) as error:
             raise CorruptPolicySetError(f"cannot load the policy set in {directory}: {error}") from error
-        return policy_set
+        return policy_set.to(device)

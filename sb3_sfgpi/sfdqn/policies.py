@@ -339,7 +339,7 @@ class SFDQNPolicy(BasePolicy):
         :return: the loss before the step
         """
         batch = replay_buffer.sample(batch_size, env=vec_normalize_env)
-        rows = th.arange(batch_size)
+        rows = th.arange(batch_size, device=batch.rewards.device)
         with th.no_grad():
             next_online = self.sf_net(batch.next_observations)
             next_actions = greedy_actions(next_online, self.weights)

@@ -15,6 +15,7 @@ from stable_baselines3.common.utils import LinearSchedule, polyak_update, safe_m
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.vec_env import vec_env_reward_dim, wrap_mo_env
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
@@ -60,7 +61,9 @@ class SFDQN(OffPolicyAlgorithm):
     :param policy_kwargs: Additional arguments to be passed to the policy on creation
     :param verbose: Verbosity level: 0 for no output, 1 for info messages, 2 for debug messages
     :param seed: Seed for the pseudo random generators
-    :param device: Device (cpu, cuda, ...) on which the code should be run
+    :param device: Device (cpu, cuda, ...) on which the code should be run. ``"auto"``: the CPU for
+        ``TabularPolicy``, else CUDA where available; ``TabularPolicy`` refuses any other device than the CPU
+        (see :func:`~sb3_sfgpi.common.device.resolve_device`)
     :param _init_setup_model: Whether or not to build the network at the creation of the instance
     """
 
@@ -107,6 +110,8 @@ class SFDQN(OffPolicyAlgorithm):
             raise ValueError(
                 f"replay_buffer_class must be a subclass of MOReplayBuffer (vector rewards), got {replay_buffer_class}"
             )
+        policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
+        device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
         super().__init__(
             policy,
             env,
