@@ -22,6 +22,7 @@ def add_parser(sub: Any) -> None:
     evaluate.add_argument("--w", type=float, nargs="+", required=True, help="preference weights, one per objective")
     evaluate.add_argument("--episodes", type=int, default=1)
     evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--device", default="cpu", help="where the policy set acts: cpu, auto, cuda, cuda:N")
     evaluate.add_argument("--gpi-set", choices=["all", "ccs"], help="GPI over all of Π or its CCS (default: the run's)")
 
 
@@ -31,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     config = run_dir.read_config()
     which = args.gpi_set or config.get("gpi_set", "all")
     n_policies = run_dir.read_checkpoint()["n_policies"] if run_dir.has_checkpoint() else None
-    policy_set = run_dir.load_policy_set(n_policies)  # what the last checkpoint counts
+    policy_set = run_dir.load_policy_set(n_policies, device=args.device)  # what the last checkpoint counts
     if which == "ccs":
         policy_set = policy_set.ccs_policies()
     w = validate_weights(args.w, policy_set.reward_dim, "--w")

@@ -60,6 +60,11 @@ def add_parser(sub: Any) -> None:
         "contend with the simulator and the evaluation workers)",
     )
     train.add_argument(
+        "--device",
+        default="auto",
+        help="where the learners run: auto (tables on the CPU, MLPs on CUDA where there is one), cpu, cuda, cuda:N",
+    )
+    train.add_argument(
         "--eval-workers",
         type=int,
         help="evaluate GPI in this many worker processes, each with its own env (0: in the training process; "
@@ -114,7 +119,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         raise UsageError("--w and --budget-from are only for --algo fixed")
     if args.algo == "fixed" and args.w is None:
         raise UsageError("--algo fixed needs the preference weights --w")
-    learner_kwargs = {**preset.learner_kwargs, **key_values(args.learner, "--learner")}
+    learner_kwargs = {**preset.learner_kwargs, "device": args.device, **key_values(args.learner, "--learner")}
     config = {
         "domain": args.domain,
         "algorithm": args.algo,
