@@ -7,24 +7,14 @@ import json
 import numpy as np
 import pytest
 from momdp import REWARDS, TERMINAL
-from parallel_chain import ParallelChainEnv, optimal_value
+from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS, SETTINGS
 
-#: The tabular learner of tests/test_multiagent.py (its LEARNER, without the policy).
-LEARNER_KWARGS = dict(
-    learning_rate=0.3,
-    gamma=1.0,
-    exploration_initial_eps=1.0,
-    exploration_fraction=0.6,
-    exploration_final_eps=0.1,
-    learning_starts=0,
-    train_freq=1,
-    batch_size=16,
-    buffer_size=10_000,
-)
+#: The chain's tabular learner settings, without the policy (MASFOLS takes it apart).
+LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
 TEST_WEIGHTS = random_weights(2, 5, rng=0)
 OBS = np.arange(5)
 
