@@ -52,7 +52,7 @@ from sb3_sfgpi.policy_files import (
     network_state,
     read_state_dict,
 )
-from sb3_sfgpi.sfdqn.policies import TabularSFNetwork
+from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap, stack_networks
 

@@ -15,7 +15,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
-from sb3_sfgpi.sfdqn.policies import SFNetwork, TabularSFNetwork
+from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork
 
 _ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
 

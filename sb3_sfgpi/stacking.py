@@ -19,7 +19,7 @@ from torch import nn
 from torch.func import functional_call, stack_module_state
 
 from sb3_sfgpi.policy_files import _ACTIVATIONS
-from sb3_sfgpi.sfdqn.policies import SFNetwork, TabularSFNetwork
+from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork
 
 
 class StackedTables:

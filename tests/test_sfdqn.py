@@ -1,8 +1,6 @@
-"""SFDQN: learning on the paper's Fig. 1 MOMDP, the TD target, refusals, MO replacements of SB3 pieces, save/load."""
+"""SFDQN: learning on the paper's Fig. 1 MOMDP, the TD target, refusals and tie-breaking."""
 
 from __future__ import annotations
-
-import csv
 
 import gymnasium as gym
 import numpy as np
@@ -24,13 +22,11 @@ from momdp import (
     successor_features,
 )
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
 
-from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.common.vec_env import MODummyVecEnv, MOMonitor, wrap_mo_env
+from sb3_sfgpi.common.vec_env import MODummyVecEnv, MOMonitor
 from sb3_sfgpi.sfdqn import SFDQN
-from sb3_sfgpi.sfdqn.policies import argmax_random_ties
+from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 
 
 def greedy_policy(model: SFDQN, one_hot: bool = False, w=None) -> tuple[int, ...]:
@@ -275,162 +271,3 @@ def test_argmax_random_ties_is_uniform_over_the_tied_actions_and_draws_nothing_w
     tied = np.array([[2.0, 2.0, 1.0, 2.0]] * 3000)
     counts = np.bincount(argmax_random_ties(tied, rng), minlength=4)
     assert counts[2] == 0 and all(900 < c < 1100 for c in counts[[0, 1, 3]])
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Regression tests of the scalar-reward SB3 pieces and their MO replacements
-# --------------------------------------------------------------------------------------------------------------
-
-
-def fill_buffer(buffer, n: int) -> np.ndarray:
-    rewards = np.arange(2 * n, dtype=np.float32).reshape(n, 1, 2)
-    for i in range(n):
-        buffer.add(np.array([i % 4]), np.array([i % 4 + 1]), np.array([[i % 3]]), rewards[i], np.array([0.0]), [{}])
-    return rewards[:, 0]
-
-
-def test_mo_replay_buffer_samples_vector_rewards():
-    observation_space, action_space = gym.spaces.Discrete(N_STATES), gym.spaces.Discrete(3)
-    buffer = MOReplayBuffer(100, observation_space, action_space, device="cpu", reward_dim=2)
-    stored = fill_buffer(buffer, 20)
-    samples = buffer.sample(64)
-    assert samples.rewards.shape == (64, 2)
-    # Each sampled reward vector is the one stored with the sampled transition (rewards are 2i, 2i+1).
-    index = (samples.rewards[:, 0] / 2).long().numpy()
-    np.testing.assert_array_equal(samples.rewards.numpy(), stored[index])
-    np.testing.assert_array_equal(samples.observations.flatten().numpy(), index % 4)
-
-    # SB3's ReplayBuffer cannot do this: it refuses vector rewards or samples them with the wrong shape.
-    sb3_buffer = ReplayBuffer(100, observation_space, action_space, device="cpu")
-    try:
-        fill_buffer(sb3_buffer, 20)
-        sb3_shape = tuple(sb3_buffer.sample(64).rewards.shape)
-    except ValueError:
-        sb3_shape = None
-    assert sb3_shape != (64, 2)
-
-
-@pytest.mark.parametrize("shape", [(1,), (1, 3), (2, 2), (2,)])
-def test_mo_replay_buffer_refuses_mismatched_rewards(shape):
-    buffer = MOReplayBuffer(10, gym.spaces.Discrete(N_STATES), gym.spaces.Discrete(3), device="cpu", reward_dim=2)
-    with pytest.raises(ValueError, match="reward"):
-        buffer.add(np.array([0]), np.array([1]), np.array([[0]]), np.zeros(shape, np.float32), np.array([0.0]), [{}])
-    assert buffer.pos == 0
-
-
-def test_mo_replay_buffer_refuses_reward_normalisation():
-    buffer = MOReplayBuffer(10, gym.spaces.Discrete(N_STATES), gym.spaces.Discrete(3), device="cpu", reward_dim=2)
-    fill_buffer(buffer, 3)
-    venv = VecNormalize(MODummyVecEnv([Fig1MOMDP]), norm_obs=False, norm_reward=True)
-    with pytest.raises(ValueError, match="norm_reward"):
-        buffer.sample(4, env=venv)
-
-
-def test_mo_dummy_vec_env_steps_vector_rewards():
-    venv = MODummyVecEnv([Fig1MOMDP, Fig1MOMDP, Fig1MOMDP])
-    assert venv.reward_dim == 2
-    obs = venv.reset()
-    np.testing.assert_array_equal(obs.flatten(), [0, 0, 0])
-    _, rewards, dones, _ = venv.step(np.array([0, 1, 2]))
-    assert rewards.shape == (3, 2) and rewards.dtype == np.float32
-    np.testing.assert_array_equal(rewards, REWARDS[0])
-    assert not dones.any()
-    # SB3's DummyVecEnv stores one float per env: vector rewards do not fit.
-    with pytest.raises(ValueError):
-        sb3_venv = DummyVecEnv([Fig1MOMDP, Fig1MOMDP])
-        sb3_venv.reset()
-        sb3_venv.step(np.array([0, 1]))
-
-
-def test_mo_dummy_vec_env_refuses_a_scalar_env():
-    with pytest.raises(ValueError, match="scalar rewards"):
-        MODummyVecEnv([lambda: gym.make("CartPole-v1")])
-
-
-def test_mo_monitor_reports_the_vector_return():
-    env = MOMonitor(Fig1MOMDP())
-    actions = (1, 0, 2, 1)
-    for _ in range(2):  # the second episode must not carry the first one's sums
-        env.reset()
-        for action in actions:
-            _, _, terminated, truncated, info = env.step(action)
-        assert terminated
-        np.testing.assert_array_equal(info["episode"]["r_vec"], policy_value(actions))  # (21, 24)
-        assert info["episode"]["l"] == 4
-        assert "r" not in info["episode"]
-
-
-def test_mo_monitor_refuses_a_reward_of_the_wrong_shape():
-    class WrongShape(Fig1MOMDP):
-        def step(self, action):
-            obs, reward, terminated, truncated, info = super().step(action)
-            return obs, np.append(reward, 0.0), terminated, truncated, info
-
-    env = MOMonitor(WrongShape())
-    env.reset()
-    with pytest.raises(ValueError, match="shape"):
-        env.step(0)
-
-
-def test_wrap_mo_env_adds_a_single_monitor():
-    venv = wrap_mo_env(MOMonitor(Fig1MOMDP()))
-    assert isinstance(venv, MODummyVecEnv)
-    env = venv.envs[0]
-    assert isinstance(env, MOMonitor) and not isinstance(env.env, MOMonitor)
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Save / load and logging
-# --------------------------------------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("policy", ["TabularPolicy", "MlpPolicy"])
-def test_save_load_round_trip(tmp_path, policy):
-    one_hot = policy == "MlpPolicy"
-    model = SFDQN(
-        policy, Fig1MOMDP(one_hot=one_hot), weights=[0.8, 0.2], learning_rate=0.3 if one_hot is False else 1e-3,
-        gamma=1.0, learning_starts=0, batch_size=8, train_freq=1, seed=0,
-    )  # fmt: skip
-    model.learn(120)
-    if not one_hot:  # a table learns little in 120 steps: make ψ non-trivial
-        with th.no_grad():
-            model.policy.sf_net.table.weight.copy_(th.randn(model.policy.sf_net.table.weight.shape))
-    model.save(tmp_path / "model.zip")
-
-    for env in (None, Fig1MOMDP(one_hot=one_hot)):
-        loaded = SFDQN.load(tmp_path / "model.zip", env=env)
-        assert loaded.reward_dim == 2
-        np.testing.assert_array_equal(loaded.weights, model.weights)
-        np.testing.assert_array_equal(loaded.policy.weights.numpy(), model.policy.weights.numpy())
-        observations = all_observations(one_hot)
-        np.testing.assert_array_equal(loaded.successor_features(observations), model.successor_features(observations))
-        for w in (None, [1.0, 0.0], [0.0, 1.0], [0.3, 0.7]):
-            np.testing.assert_array_equal(
-                loaded.predict(observations, deterministic=True, w=w)[0],
-                model.predict(observations, deterministic=True, w=w)[0],
-            )
-    # Training can go on after loading.
-    loaded.learn(8)
-
-
-def test_logger_records_the_scalarised_and_per_objective_returns(tmp_path, make_tabular_sfdqn):
-    w = np.array([0.25, 0.75])
-    model = make_tabular_sfdqn(w, stats_window_size=5)
-    model.set_logger(configure(str(tmp_path), ["csv"]))
-    model.learn(200, log_interval=1)  # 50 episodes of 4 steps, one log line per episode
-
-    with open(tmp_path / "progress.csv") as handle:
-        rows = list(csv.DictReader(handle))
-    assert len(rows) >= 40
-    for row in rows:
-        per_objective = np.array([float(row["rollout/ep_rew_mean_0"]), float(row["rollout/ep_rew_mean_1"])])
-        assert float(row["rollout/ep_rew_mean"]) == pytest.approx(w @ per_objective, rel=1e-5)
-    # The last line is w · (mean vector return of the last 5 episodes).
-    mean_return = np.mean([info["r_vec"] for info in model.ep_info_buffer], axis=0)
-    assert len(model.ep_info_buffer) == 5
-    np.testing.assert_allclose(
-        [float(rows[-1]["rollout/ep_rew_mean_0"]), float(rows[-1]["rollout/ep_rew_mean_1"])], mean_return, rtol=1e-5
-    )
-    assert float(rows[-1]["rollout/ep_rew_mean"]) == pytest.approx(w @ mean_return, rel=1e-5)
-    # Vector returns vary between episodes (exploration), so the per-objective columns are not trivially equal.
-    assert len({row["rollout/ep_rew_mean_0"] for row in rows}) > 1

@@ -104,6 +104,31 @@ class MOReplayBuffer(ReplayBuffer):
         obs, actions, next_obs, dones, rewards = self._arrays(self._sample_indices(batch_size))
         return obs, actions.reshape(-1), next_obs, dones.reshape(-1), rewards
 
+    def stored_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """
+        Every stored transition of every env, as numpy arrays in the layout of :meth:`sample_arrays`.
+
+        :return: observations, actions ``(N,)``, next observations, dones ``(N,)`` (truncations count as not done),
+            rewards ``(N, d)``
+        """
+        if not self.optimize_memory_usage:
+            indices = np.arange(self.buffer_size if self.full else self.pos)
+        elif self.full:  # one array for obs and next obs: the transition at ``pos`` has no next observation
+            indices = (np.arange(1, self.buffer_size) + self.pos) % self.buffer_size
+        else:
+            indices = np.arange(self.pos)
+        flat = (indices[:, None] * self.n_envs + np.arange(self.n_envs)).reshape(-1)
+        next_flat = flat if not self.optimize_memory_usage else (flat + self.n_envs) % (self.buffer_size * self.n_envs)
+        next_source = self.observations if self.optimize_memory_usage else self.next_observations
+        dones = self.dones.reshape(-1).take(flat) * (1 - self.timeouts.reshape(-1).take(flat))
+        return (
+            _rows(self.observations, flat),
+            _rows(self.actions, flat).reshape(-1),
+            _rows(next_source, next_flat),
+            dones,
+            _rows(self.rewards, flat),
+        )
+
     def _sample_indices(self, batch_size: int) -> np.ndarray:
         if not self.optimize_memory_usage:
             upper_bound = self.buffer_size if self.full else self.pos

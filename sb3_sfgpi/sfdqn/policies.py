@@ -1,8 +1,4 @@
-"""Successor-feature networks and the SFDQN policies.
-
-A successor-feature network maps an observation to ``ψ(s, ·)`` of shape ``(batch, n_actions, d)``;
-the Q-values for preference weights ``w`` are ``ψ · w``.
-"""
+"""The SFDQN policies: an online and a target successor-feature network, acting greedily for weights ``w``."""
 
 from __future__ import annotations
 
@@ -12,7 +8,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor, create_mlp
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecNormalize
@@ -20,201 +16,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-
-#: Largest table :class:`TabularSFNetwork` builds (number of observation values).
-MAX_TABLE_STATES = 50_000_000
-
-
-def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
-    """
-    ``Q_w(s, a) = w · ψ(s, a)``.
-
-    :param psi: successor features, shape ``(batch, n_actions, d)``
-    :param weights: shape ``(d,)`` or ``(batch, d)``
-    :return: shape ``(batch, n_actions)``
-    """
-    return (psi * weights.reshape(-1, 1, psi.shape[-1])).sum(dim=-1)
-
-
-def greedy_actions(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
-    """
-    ``argmax_a w · ψ(s, a)`` (ties go to the first action).
-
-    :param psi: successor features, shape ``(batch, n_actions, d)``
-    :param weights: shape ``(d,)`` or ``(batch, d)``
-    :return: actions, shape ``(batch,)``
-    """
-    return scalarize(psi, weights).argmax(dim=1)
-
-
-def argmax_random_ties(q_values: np.ndarray, rng: np.random.Generator | Any = np.random) -> np.ndarray:
-    """
-    ``argmax_a q(s, a)`` with ties between actions of exactly equal value broken uniformly at random.
-
-    A zero-initialised table ties in every state it has not learned: a behaviour policy that always takes the first
-    action there walks the same way until a wall stops it, and its greedy steps explore nothing.
-
-    :param q_values: shape ``(batch, n_actions)``
-    :param rng: what draws the tie-breaks: a ``numpy.random.Generator`` or the ``numpy.random`` module (seeded by
-        SB3's ``set_random_seed``)
-    :return: actions, shape ``(batch,)``
-    """
-    best = q_values == q_values.max(axis=1, keepdims=True)
-    if best.sum() == len(best):  # no ties anywhere: no random numbers drawn
-        return best.argmax(axis=1)
-    return np.where(best, rng.random(best.shape), -1.0).argmax(axis=1)
-
-
-class SFNetwork(BasePolicy):
-    """
-    MLP successor-feature network.
-
-    :param observation_space: Observation space
-    :param action_space: Action space (Discrete)
-    :param features_extractor: Features extractor
-    :param features_dim: Number of features
-    :param reward_dim: Number of objectives ``d``
-    :param net_arch: Hidden layer sizes
-    :param activation_fn: Activation function
-    :param normalize_images: Whether to divide images by 255
-    """
-
-    action_space: spaces.Discrete
-
-    def __init__(
-        self,
-        observation_space: spaces.Space,
-        action_space: spaces.Discrete,
-        features_extractor: BaseFeaturesExtractor,
-        features_dim: int,
-        reward_dim: int,
-        net_arch: list[int] | None = None,
-        activation_fn: type[nn.Module] = nn.ReLU,
-        normalize_images: bool = True,
-    ):
-        super().__init__(
-            observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
-        )
-        self.net_arch = [64, 64] if net_arch is None else list(net_arch)
-        self.activation_fn = activation_fn
-        self.features_dim = features_dim
-        self.reward_dim = reward_dim
-        self.n_actions = int(action_space.n)
-        self.sf_net = nn.Sequential(
-            *create_mlp(features_dim, self.n_actions * reward_dim, self.net_arch, activation_fn)
-        )
-
-    def forward(self, obs: PyTorchObs) -> th.Tensor:
-        """
-        :param obs: Observation batch
-        :return: ``ψ(s, ·)``, shape ``(batch, n_actions, d)``
-        """
-        features = self.extract_features(obs, self.features_extractor)
-        return self.sf_net(features).view(-1, self.n_actions, self.reward_dim)
-
-    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
-        raise NotImplementedError("an SF network has no weights: use SFDQNPolicy or GPIPolicy to act")
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(
-            net_arch=self.net_arch,
-            features_dim=self.features_dim,
-            reward_dim=self.reward_dim,
-            activation_fn=self.activation_fn,
-            features_extractor=self.features_extractor,
-        )
-        return data
-
-
-def observation_radices(observation_space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
-    """
-    Lower bounds and number of values of each component of a small integer observation space.
-
-    :param observation_space: Discrete, MultiDiscrete, MultiBinary or integer 1-D Box with finite bounds
-    :return: ``(low, n_values)``, integer arrays of equal length
-    :raises ValueError: for any other space
-    """
-    if isinstance(observation_space, spaces.Discrete):
-        return np.array([observation_space.start]), np.array([observation_space.n])
-    if isinstance(observation_space, spaces.MultiDiscrete) and observation_space.nvec.ndim == 1:
-        return np.asarray(observation_space.start).reshape(-1), observation_space.nvec.astype(np.int64)
-    if isinstance(observation_space, spaces.MultiBinary) and np.ndim(observation_space.n) == 0:
-        return np.zeros(int(observation_space.n), dtype=np.int64), np.full(int(observation_space.n), 2)
-    if (
-        isinstance(observation_space, spaces.Box)
-        and len(observation_space.shape) == 1
-        and np.issubdtype(observation_space.dtype, np.integer)
-        and observation_space.is_bounded()
-    ):
-        low = observation_space.low.astype(np.int64)
-        return low, observation_space.high.astype(np.int64) - low + 1
-    raise ValueError(
-        "TabularPolicy needs a small integer observation space (Discrete, MultiDiscrete, MultiBinary or a bounded "
-        f"integer 1-D Box), got {observation_space}"
-    )
-
-
-class TabularSFNetwork(BasePolicy):
-    """
-    Lookup table of successor features, one row per observation value, initialised to zero.
-
-    The row of an observation is its mixed-radix index; ``TabularPolicy.td_update`` updates the sampled rows
-    in place.
-
-    :param observation_space: a small integer observation space (see :func:`observation_radices`)
-    :param action_space: Action space (Discrete)
-    :param reward_dim: Number of objectives ``d``
-    """
-
-    action_space: spaces.Discrete
-
-    def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete, reward_dim: int):
-        super().__init__(observation_space, action_space)
-        low, n_values = observation_radices(observation_space)
-        n_states = int(np.prod(n_values.astype(np.float64)))
-        if n_states > MAX_TABLE_STATES:
-            raise ValueError(
-                f"the observation space has {n_states} values, more than a table holds ({MAX_TABLE_STATES}): "
-                "use MlpPolicy"
-            )
-        strides = np.concatenate([np.cumprod(n_values[::-1])[::-1][1:], [1]]).astype(np.int64)
-        self._low, self._strides = low.astype(np.int64), strides
-        self.register_buffer("low", th.as_tensor(low, dtype=th.long), persistent=False)
-        self.register_buffer("strides", th.as_tensor(strides, dtype=th.long), persistent=False)
-        self.reward_dim = reward_dim
-        self.n_actions = int(action_space.n)
-        self.table = nn.Embedding(n_states, self.n_actions * reward_dim)
-        nn.init.zeros_(self.table.weight)
-
-    def rows(self, obs: np.ndarray) -> np.ndarray:
-        """Numpy twin of :meth:`state_index`: row indices of raw observations, shape ``(batch,)``."""
-        components = np.asarray(obs, dtype=np.int64).reshape(len(obs), -1) - self._low
-        return components @ self._strides
-
-    def state_index(self, obs: th.Tensor) -> th.Tensor:
-        """
-        :param obs: raw integer observations, shape ``(batch,)`` or ``(batch, n_components)``
-        :return: row indices, shape ``(batch,)``
-        """
-        components = obs.long().reshape(obs.shape[0], -1) - self.low
-        return (components * self.strides).sum(dim=1)
-
-    def forward(self, obs: PyTorchObs) -> th.Tensor:
-        """
-        :param obs: Observation batch (not preprocessed)
-        :return: ``ψ(s, ·)``, shape ``(batch, n_actions, d)``
-        """
-        assert isinstance(obs, th.Tensor)
-        return self.table(self.state_index(obs)).view(-1, self.n_actions, self.reward_dim)
-
-    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
-        raise NotImplementedError("an SF network has no weights: use SFDQNPolicy or GPIPolicy to act")
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        return dict(
-            observation_space=self.observation_space, action_space=self.action_space, reward_dim=self.reward_dim
-        )
+from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, argmax_random_ties, greedy_actions, scalarize
+from sb3_sfgpi.sfdqn.planning import EmpiricalModel
 
 
 class SFDQNPolicy(BasePolicy):
@@ -476,6 +279,31 @@ class TabularPolicy(SFDQNPolicy):
         psi = net.table.weight.detach().numpy()[net.rows(obs)].reshape(-1, net.n_actions, self.reward_dim)
         q_values = psi @ np.asarray(weights, dtype=np.float32)
         return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
+
+    def plan(self, replay_buffer: MOReplayBuffer, gamma: float, max_sweeps: int) -> int:
+        """
+        Dyna-style planning: sweeps of the SF backup over every pair recorded in the replay buffer (see
+        :class:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel`); a separate target table is then set to the result.
+
+        :param replay_buffer: the transitions that make the model
+        :param gamma: discount factor
+        :param max_sweeps: most sweeps to do
+        :return: the number of sweeps done
+        """
+        net = self.sf_net
+        if not self._on_cpu():
+            raise ValueError("TabularPolicy plans on the CPU: create SFDQN with device='cpu'")
+        obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
+        if len(actions) == 0:
+            return 0
+        model = EmpiricalModel.from_transitions(
+            net.rows(obs), actions, net.rows(next_obs), dones, rewards, net.table.num_embeddings, net.n_actions
+        )
+        entries = net.table.weight.detach().numpy().reshape(-1, self.reward_dim)
+        sweeps = model.sweep(entries, self.weights.numpy(), gamma, max_sweeps)
+        if self.sf_net_target is not net:
+            self.sf_net_target.load_state_dict(net.state_dict())
+        return sweeps
 
     def td_update(
         self,

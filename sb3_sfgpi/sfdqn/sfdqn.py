@@ -8,6 +8,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
@@ -21,6 +22,15 @@ from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
 
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
+
+
+def _check_planning(planning_sweeps: int, planning_interval: int, policy_class: type) -> None:
+    if not isinstance(planning_sweeps, int) or planning_sweeps < 0:
+        raise ValueError(f"planning_sweeps must be an integer >= 0, got {planning_sweeps!r}")
+    if not isinstance(planning_interval, int) or planning_interval < 1:
+        raise ValueError(f"planning_interval must be an integer >= 1, got {planning_interval!r}")
+    if planning_sweeps and not issubclass(policy_class, TabularPolicy):
+        raise ValueError(f"planning (planning_sweeps > 0) needs TabularPolicy, got {policy_class.__name__}")
 
 
 class SFDQN(OffPolicyAlgorithm):
@@ -56,6 +66,10 @@ class SFDQN(OffPolicyAlgorithm):
     :param exploration_initial_eps: Initial value of random action probability
     :param exploration_final_eps: Final value of random action probability
     :param max_grad_norm: The maximum value for the gradient clipping (not used by the tabular policy)
+    :param planning_sweeps: Dyna-style planning (``TabularPolicy`` only): every ``planning_interval`` env steps,
+        up to this many sweeps of the SF backup over every pair recorded in the replay buffer
+        (:meth:`~sb3_sfgpi.sfdqn.policies.TabularPolicy.plan`); 0 for none
+    :param planning_interval: Env steps between two plannings
     :param stats_window_size: Window size for the rollout logging
     :param tensorboard_log: The log location for tensorboard (if None, no logging)
     :param policy_kwargs: Additional arguments to be passed to the policy on creation
@@ -96,6 +110,8 @@ class SFDQN(OffPolicyAlgorithm):
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.05,
         max_grad_norm: float = 10,
+        planning_sweeps: int = 0,
+        planning_interval: int = 5_000,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -111,6 +127,7 @@ class SFDQN(OffPolicyAlgorithm):
                 f"replay_buffer_class must be a subclass of MOReplayBuffer (vector rewards), got {replay_buffer_class}"
             )
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
+        _check_planning(planning_sweeps, planning_interval, policy_class)
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
         super().__init__(
             policy,
@@ -144,6 +161,9 @@ class SFDQN(OffPolicyAlgorithm):
         self.target_update_interval = target_update_interval
         self._n_calls = 0
         self.max_grad_norm = max_grad_norm
+        self.planning_sweeps = planning_sweeps
+        self.planning_interval = planning_interval
+        self._plannings = 0  # plannings done: one each time num_timesteps passes a multiple of planning_interval
         self.exploration_rate = 0.0
         if self.env is not None:
             self.reward_dim = vec_env_reward_dim(self.env)
@@ -192,6 +212,18 @@ class SFDQN(OffPolicyAlgorithm):
         with th.no_grad():
             return self.policy.sf_net(obs_tensor).cpu().numpy()
 
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        if reset_num_timesteps:
+            self._plannings = 0
+        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+
     def _on_step(self) -> None:
         """Update the exploration rate and, every ``target_update_interval`` steps, the target network."""
         self._n_calls += 1
@@ -214,6 +246,10 @@ class SFDQN(OffPolicyAlgorithm):
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/loss", sum(losses) / len(losses))
+        if self.planning_sweeps and self.num_timesteps // self.planning_interval > self._plannings:
+            self._plannings = self.num_timesteps // self.planning_interval
+            sweeps = self.policy.plan(self.replay_buffer, self.gamma, self.planning_sweeps)  # type: ignore[attr-defined]
+            self.logger.record("train/planning_sweeps", sweeps)
 
     def predict(
         self,

@@ -1,0 +1,101 @@
+"""Dyna-style planning of tabular SFs: the empirical model's backup, exact on hand-made and Fig. 1 models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import FIG1_TABULAR_KWARGS
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from momdp import N_STATES, REWARDS, TERMINAL, Fig1MOMDP, all_observations, optimal_value, successor_features
+
+from sb3_sfgpi.sfdqn import SFDQN
+from sb3_sfgpi.sfdqn.planning import EmpiricalModel
+
+
+def test_a_stochastic_model_is_backed_up_with_its_empirical_probabilities():
+    # s0 -a0-> s1 twice (reward (1, 0)), s0 -a0-> end once (reward (0, 3)); s1 -a0-> end (reward (2, 2)).
+    rows, actions = np.array([0, 0, 0, 1]), np.zeros(4, dtype=np.int64)
+    next_rows, dones = np.array([1, 1, 2, 2]), np.array([0.0, 0.0, 1.0, 1.0])
+    rewards = np.array([[1, 0], [1, 0], [0, 3], [2, 2]], dtype=np.float32)
+    model = EmpiricalModel.from_transitions(rows, actions, next_rows, dones, rewards, n_rows=3, n_actions=1)
+    table = np.zeros((3, 2), dtype=np.float32)
+    assert model.sweep(table, np.array([0.5, 0.5], np.float32), gamma=0.5, max_sweeps=50) < 50
+    # ψ(s1) = (2, 2); ψ(s0) = 2/3 · ((1, 0) + 0.5 · (2, 2)) + 1/3 · (0, 3) = (4/3, 5/3); the end state stays 0.
+    np.testing.assert_allclose(table, [[4 / 3, 5 / 3], [2, 2], [0, 0]], rtol=1e-6)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0.0, 0.5, 0.9]))
+def test_sweeps_reach_value_iteration_on_the_empirical_model(seed, gamma):
+    rng = np.random.default_rng(seed)
+    n_states, n_actions, n = 4, 2, 40
+    rows, actions = rng.integers(0, n_states, n), rng.integers(0, n_actions, n)
+    next_rows, dones = rng.integers(0, n_states, n), (rng.random(n) < 0.3).astype(np.float64)
+    rewards = rng.integers(0, 3, (n, 2)).astype(np.float32)
+    w = np.array([0.3, 0.7], dtype=np.float32)
+    model = EmpiricalModel.from_transitions(rows, actions, next_rows, dones, rewards, n_states, n_actions)
+    table = np.zeros((n_states * n_actions, 2), dtype=np.float32)
+    model.sweep(table, w, gamma, max_sweeps=2_000)
+
+    # Value iteration, by hand, on the counts: one (s, a) at a time, every transition weighted equally.
+    expected = np.zeros((n_states, n_actions, 2))
+    for _ in range(2_000):
+        previous, expected = expected, np.zeros_like(expected)
+        for s, a in set(zip(rows.tolist(), actions.tolist())):
+            seen = (rows == s) & (actions == a)
+            following = previous[next_rows[seen], (previous[next_rows[seen]] @ w).argmax(axis=1)]
+            expected[s, a] = np.mean(rewards[seen] + gamma * (1 - dones[seen])[:, None] * following, axis=0)
+    np.testing.assert_allclose(table.reshape(n_states, n_actions, 2), expected, atol=1e-4)
+
+
+@pytest.mark.parametrize("w", [[1.0, 0.0], [0.0, 1.0], [0.4, 0.6]])
+def test_planning_on_a_fully_explored_fig1_gives_the_optimal_sfs(w):
+    # Uniformly random actions, no TD updates: every (s, a) is recorded, and only planning learns.
+    model = SFDQN(
+        "TabularPolicy", Fig1MOMDP(), weights=w, gamma=1.0, learning_starts=10_000, exploration_initial_eps=1.0,
+        exploration_final_eps=1.0, seed=0,
+    )  # fmt: skip
+    model.learn(400)
+    assert model.policy.plan(model.replay_buffer, gamma=1.0, max_sweeps=10) <= 10
+    psi = model.successor_features(all_observations())
+    greedy = tuple(int(a) for a in (psi[:TERMINAL] @ np.asarray(w)).argmax(axis=1))
+    assert float(np.asarray(w) @ psi[0, greedy[0]]) == pytest.approx(optimal_value(w), abs=1e-4)
+    np.testing.assert_allclose(psi, successor_features(greedy), atol=1e-4)
+
+
+def test_sfdqn_plans_every_planning_interval_and_learns_fig1_from_fewer_steps():
+    steps, w = 60, [1.0, 0.0]
+    kwargs = {**FIG1_TABULAR_KWARGS, "exploration_fraction": 1.0, "exploration_final_eps": 0.5, "seed": 0}
+    planned = SFDQN("TabularPolicy", Fig1MOMDP(), weights=w, planning_sweeps=20, planning_interval=20, **kwargs)
+    planned.learn(steps)
+    assert planned._plannings == steps // 20
+    psi = planned.successor_features(all_observations())
+    assert float(np.asarray(w) @ psi[0].max(axis=0)) == pytest.approx(optimal_value(w), abs=1e-4)
+    # Without planning the same steps leave the table short of the optimum.
+    unplanned = SFDQN("TabularPolicy", Fig1MOMDP(), weights=w, **kwargs)
+    unplanned.learn(steps)
+    assert float((unplanned.successor_features(all_observations())[0] @ np.asarray(w)).max()) < optimal_value(w) - 1
+
+
+@pytest.mark.parametrize(
+    "policy, kwargs, message",
+    [
+        ("MlpPolicy", {"planning_sweeps": 5}, "needs TabularPolicy"),
+        ("TabularPolicy", {"planning_sweeps": -1}, "planning_sweeps"),
+        ("TabularPolicy", {"planning_sweeps": 5, "planning_interval": 0}, "planning_interval"),
+    ],
+)
+def test_bad_planning_options_are_refused(policy, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        SFDQN(policy, Fig1MOMDP(one_hot=policy == "MlpPolicy"), **kwargs)
+
+
+def test_stored_arrays_are_the_recorded_transitions():
+    model = SFDQN("TabularPolicy", Fig1MOMDP(), learning_starts=10_000, exploration_initial_eps=1.0, seed=0)
+    model.learn(40)
+    obs, actions, next_obs, dones, rewards = model.replay_buffer.stored_arrays()
+    assert len(actions) == 40
+    np.testing.assert_array_equal(next_obs.reshape(-1), obs.reshape(-1) + 1)
+    np.testing.assert_array_equal(dones, next_obs.reshape(-1) == N_STATES - 1)
+    np.testing.assert_array_equal(rewards, REWARDS[obs.reshape(-1), actions])
