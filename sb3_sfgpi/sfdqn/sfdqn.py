@@ -24,7 +24,20 @@ from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 
 
-def _check_planning(planning_sweeps: int, planning_interval: int, policy_class: type) -> None:
+def _check_options(
+    n_steps: int,
+    replay_buffer_class: type[ReplayBuffer] | None,
+    planning_sweeps: int,
+    planning_interval: int,
+    policy_class: type,
+) -> None:
+    """Refuse the SB3 options SFDQN does not support and bad planning options, with a ``ValueError``."""
+    if n_steps != 1:
+        raise ValueError(f"SFDQN supports only 1-step returns (n_steps=1), got n_steps={n_steps}")
+    if replay_buffer_class is not None and not issubclass(replay_buffer_class, MOReplayBuffer):
+        raise ValueError(
+            f"replay_buffer_class must be a subclass of MOReplayBuffer (vector rewards), got {replay_buffer_class}"
+        )
     if not isinstance(planning_sweeps, int) or planning_sweeps < 0:
         raise ValueError(f"planning_sweeps must be an integer >= 0, got {planning_sweeps!r}")
     if not isinstance(planning_interval, int) or planning_interval < 1:
@@ -120,14 +133,8 @@ class SFDQN(OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        if n_steps != 1:
-            raise ValueError(f"SFDQN supports only 1-step returns (n_steps=1), got n_steps={n_steps}")
-        if replay_buffer_class is not None and not issubclass(replay_buffer_class, MOReplayBuffer):
-            raise ValueError(
-                f"replay_buffer_class must be a subclass of MOReplayBuffer (vector rewards), got {replay_buffer_class}"
-            )
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
-        _check_planning(planning_sweeps, planning_interval, policy_class)
+        _check_options(n_steps, replay_buffer_class, planning_sweeps, planning_interval, policy_class)
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
         super().__init__(
             policy,
