@@ -111,44 +111,36 @@ class MOReplayBuffer(ReplayBuffer):
         :return: observations, actions ``(N,)``, next observations, dones ``(N,)`` (truncations count as not done),
             rewards ``(N, d)``
         """
-        if not self.optimize_memory_usage:
-            indices = np.arange(self.buffer_size if self.full else self.pos)
-        elif self.full:  # one array for obs and next obs: the transition at ``pos`` has no next observation
-            indices = (np.arange(1, self.buffer_size) + self.pos) % self.buffer_size
-        else:
-            indices = np.arange(self.pos)
+        start, stop, shift = self._valid_positions()
+        indices = (np.arange(start, stop) + shift) % self.buffer_size
         flat = (indices[:, None] * self.n_envs + np.arange(self.n_envs)).reshape(-1)
-        next_flat = flat if not self.optimize_memory_usage else (flat + self.n_envs) % (self.buffer_size * self.n_envs)
-        next_source = self.observations if self.optimize_memory_usage else self.next_observations
-        dones = self.dones.reshape(-1).take(flat) * (1 - self.timeouts.reshape(-1).take(flat))
-        return (
-            _rows(self.observations, flat),
-            _rows(self.actions, flat).reshape(-1),
-            _rows(next_source, next_flat),
-            dones,
-            _rows(self.rewards, flat),
-        )
+        obs, actions, next_obs, dones, rewards = self._gather(flat)
+        return obs, actions.reshape(-1), next_obs, dones.reshape(-1), rewards
+
+    def _valid_positions(self) -> tuple[int, int, int]:
+        """The stored transitions are at ``(i + shift) % buffer_size`` for ``start <= i < stop``."""
+        if not self.optimize_memory_usage:
+            return 0, self.buffer_size if self.full else self.pos, 0
+        # With one array for obs and next obs, the transition at ``pos`` is not valid.
+        return (1, self.buffer_size, self.pos) if self.full else (0, self.pos, 0)
 
     def _sample_indices(self, batch_size: int) -> np.ndarray:
-        if not self.optimize_memory_usage:
-            upper_bound = self.buffer_size if self.full else self.pos
-            return np.random.randint(0, upper_bound, size=batch_size)
-        # With one array for obs and next obs, the transition at ``pos`` is not valid.
-        if self.full:
-            return (np.random.randint(1, self.buffer_size, size=batch_size) + self.pos) % self.buffer_size
-        return np.random.randint(0, self.pos, size=batch_size)
+        start, stop, shift = self._valid_positions()
+        return (np.random.randint(start, stop, size=batch_size) + shift) % self.buffer_size
 
     def _arrays(self, batch_inds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         # Each array is read as (buffer_size * n_envs, ...) at the flat rows ``transition * n_envs + env``: one
         # ``take`` per array is several times cheaper than indexing with two index arrays, for the same elements.
-        n_envs = self.n_envs
-        next_inds = (batch_inds + 1) % self.buffer_size if self.optimize_memory_usage else batch_inds
-        if n_envs == 1:
+        if self.n_envs == 1:
             # randint over a single value draws nothing from the generator: skipping it changes no sample.
-            flat, next_flat = batch_inds, next_inds
-        else:
-            env_indices = np.random.randint(0, high=n_envs, size=(len(batch_inds),))
-            flat, next_flat = batch_inds * n_envs + env_indices, next_inds * n_envs + env_indices
+            return self._gather(batch_inds)
+        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+        return self._gather(batch_inds * self.n_envs + env_indices)
+
+    def _gather(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The transitions at the flat rows ``transition * n_envs + env``, in the layout of :meth:`_arrays`."""
+        # With one array for obs and next obs, the next observation is the same env's one step later.
+        next_flat = (flat + self.n_envs) % (self.buffer_size * self.n_envs) if self.optimize_memory_usage else flat
         next_source = self.observations if self.optimize_memory_usage else self.next_observations
         dones, timeouts = self.dones.reshape(-1).take(flat), self.timeouts.reshape(-1).take(flat)
         return (

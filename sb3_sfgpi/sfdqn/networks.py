@@ -42,6 +42,19 @@ def greedy_actions(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
     return scalarize(psi, weights).argmax(dim=1)
 
 
+def greedy_entries(entries: np.ndarray, first: np.ndarray, n_actions: int, weights: np.ndarray) -> np.ndarray:
+    """
+    ``s * n_actions + argmax_a w · ψ(s, a)`` read from a table seen as one row per ``(state, action)``.
+
+    :param entries: ψ, shape ``(n_states * n_actions, d)``
+    :param first: ``s * n_actions`` of each state, shape ``(batch,)``
+    :param n_actions: number of actions
+    :param weights: ``w``, shape ``(d,)``
+    :return: the row of each state's greedy action (ties go to the first), shape ``(batch,)``
+    """
+    return first + (entries[first[:, None] + np.arange(n_actions)] @ weights).argmax(axis=1)
+
+
 def argmax_random_ties(q_values: np.ndarray, rng: np.random.Generator | Any = np.random) -> np.ndarray:
     """
     ``argmax_a q(s, a)`` with ties between actions of exactly equal value broken uniformly at random.

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sb3_sfgpi.sfdqn.networks import greedy_entries
+
 #: Sweeps stop once no entry of ψ moves by more than this.
 TOLERANCE = 1e-6
 
@@ -70,7 +72,7 @@ class EmpiricalModel:
         keys, outcome, counts = np.unique(
             entry * n_entries + next_rows.astype(np.int64) * n_actions, return_inverse=True, return_counts=True
         )
-        entries, pair, pair_counts = np.unique(keys // n_entries, return_inverse=True, return_counts=True)
+        entries, pair = np.unique(keys // n_entries, return_inverse=True)
         pair_total = np.bincount(pair, weights=counts)
 
         def mean(values: np.ndarray) -> np.ndarray:
@@ -97,12 +99,11 @@ class EmpiricalModel:
         :param max_sweeps: most sweeps to do
         :return: the number of sweeps done
         """
-        next_entries = self.next_first[:, None] + np.arange(self.n_actions)
         scale = (gamma * self.continues * self.probability)[:, None]
         expected_reward = self.reward * self.probability[:, None]
         for sweep in range(1, max_sweeps + 1):
-            best = (table[next_entries] @ weights).argmax(axis=1)
-            contributions = expected_reward + scale * table[self.next_first + best]
+            following = table[greedy_entries(table, self.next_first, self.n_actions, weights)]
+            contributions = expected_reward + scale * following
             backed_up = np.stack(
                 [
                     np.bincount(self.pair, weights=contributions[:, i], minlength=len(self.entries))

@@ -16,7 +16,14 @@ from torch import nn
 from torch.nn import functional as F
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, argmax_random_ties, greedy_actions, scalarize
+from sb3_sfgpi.sfdqn.networks import (
+    SFNetwork,
+    TabularSFNetwork,
+    argmax_random_ties,
+    greedy_actions,
+    greedy_entries,
+    scalarize,
+)
 from sb3_sfgpi.sfdqn.planning import EmpiricalModel
 
 
@@ -258,9 +265,17 @@ class TabularPolicy(SFDQNPolicy):
         """A new zero-initialised SF table."""
         return TabularSFNetwork(self.observation_space, self.action_space, self.reward_dim).to(self.device)  # type: ignore[arg-type]
 
-    def _table(self, net: TabularSFNetwork) -> np.ndarray:
-        # A numpy view sharing memory with the table: updates through it are updates of the module.
-        return net.table.weight.detach().numpy().reshape(-1, net.n_actions, self.reward_dim)
+    def _entries(self, net: TabularSFNetwork) -> np.ndarray:
+        """
+        The table as one row of ψ per ``(state, action)`` (row ``s * n_actions + a``): a numpy view sharing memory
+        with the module, so updates through it are updates of the table.
+
+        :raises ValueError: the table is not on the CPU
+        """
+        weight = net.table.weight
+        if weight.device.type != "cpu":
+            raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
+        return weight.detach().numpy().reshape(-1, self.reward_dim)
 
     def _on_cpu(self) -> bool:
         # ``self.device`` walks the parameters; the table's own tensor says it directly.
@@ -291,15 +306,13 @@ class TabularPolicy(SFDQNPolicy):
         :return: the number of sweeps done
         """
         net = self.sf_net
-        if not self._on_cpu():
-            raise ValueError("TabularPolicy plans on the CPU: create SFDQN with device='cpu'")
+        entries = self._entries(net)
         obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
         if len(actions) == 0:
             return 0
         model = EmpiricalModel.from_transitions(
             net.rows(obs), actions, net.rows(next_obs), dones, rewards, net.table.num_embeddings, net.n_actions
         )
-        entries = net.table.weight.detach().numpy().reshape(-1, self.reward_dim)
         sweeps = model.sweep(entries, self.weights.numpy(), gamma, max_sweeps)
         if self.sf_net_target is not net:
             self.sf_net_target.load_state_dict(net.state_dict())
@@ -325,22 +338,13 @@ class TabularPolicy(SFDQNPolicy):
         :return: the loss before the step
         """
         net, target_net = self.sf_net, self.sf_net_target
-        weight = net.table.weight
-        if weight.device.type != "cpu":
-            raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
+        entries = self._entries(net)
         if vec_normalize_env is not None and vec_normalize_env.norm_obs:
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
         obs, actions, next_obs, dones, rewards = replay_buffer.sample_arrays(batch_size)
-        n_actions, reward_dim = net.n_actions, self.reward_dim
-        # The table's memory seen as one row of ψ(s, a) per (state, action): entry s * n_actions + a.
-        entries = weight.detach().numpy().reshape(-1, reward_dim)
-        next_first = net.rows(next_obs) * n_actions
-        next_online = entries[next_first[:, None] + np.arange(n_actions)]
-        next_flat = next_first + (next_online @ self.weights.numpy()).argmax(axis=1)
-        if target_net is not net:
-            next_entries = target_net.table.weight.detach().numpy().reshape(-1, reward_dim)
-        else:
-            next_entries = entries
+        n_actions = net.n_actions
+        next_flat = greedy_entries(entries, net.rows(next_obs) * n_actions, n_actions, self.weights.numpy())
+        next_entries = self._entries(target_net) if target_net is not net else entries
         target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_entries[next_flat]
         flat = net.rows(obs) * n_actions + actions.astype(np.int64)
         td_error = target_psi - entries[flat]
