@@ -195,6 +195,8 @@ class MultiAgentRunner:
                 agent, self.views[agent], weights[agent], derive_seed(self.seed, iteration, agent)
             )
             if init_networks and agent in init_networks:
+                if learner.optimistic_init:
+                    raise ValueError("transfer (init_networks) and optimistic_init exclude each other: both set ψ")
                 learner.policy.sf_net.load_state_dict(init_networks[agent].state_dict())
                 learner.policy.sf_net_target.load_state_dict(init_networks[agent].state_dict())
             if learner.train_freq.unit != TrainFrequencyUnit.STEP:  # type: ignore[union-attr]
@@ -300,8 +302,9 @@ class MultiAgentRunner:
         return bool(keep_going)
 
     def end_iteration(self) -> None:
-        """Close the learners' callbacks and flush their logs."""
+        """Settle the learners' optimism (:meth:`~sb3_sfgpi.sfdqn.SFDQN.settle`), close their callbacks and logs."""
         for agent, callback in self._learner_callbacks.items():
+            self.learners[agent].settle()
             callback.on_rollout_end()
             callback.on_training_end()
             if self.learners[agent]._episode_num > 0:

@@ -1,7 +1,8 @@
 """The figures of ``sb3-sfgpi plot``.
 
 * :func:`plot_returns` -- GPI return over OLS iterations, mean ± std over seeds, one line per algorithm
-  (paper Fig. 4 and Fig. 7), from run directories;
+  (paper Fig. 4 and Fig. 7), from run directories, with horizontal reference lines (:class:`Reference`: the
+  learners trained a priori for each test weight, an exact optimum);
 * :func:`plot_step_metrics` -- a per-step quantity over an evaluation episode (e.g. the vehicles' or the
   pedestrians' waiting time) for GPI at several weights (paper Figs. 8-10), from a comparison file;
 * :func:`plot_versus` -- GPI against the learners trained from scratch for one fixed weight, per objective
@@ -16,6 +17,7 @@ episodes).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +26,21 @@ import numpy as np
 from sb3_sfgpi.run_directory import RunDirectory
 
 LABELS = {"ma-sfols": "MA-SFOLS + GPI", "random": "Random + GPI", "fixed": "fixed-weight learners"}
+
+
+@dataclass(frozen=True)
+class Reference:
+    """
+    A horizontal line of :func:`plot_returns`: a value the curves are measured against.
+
+    :param label: its legend entry
+    :param mean: its value
+    :param std: its spread over seeds (a band; 0 for none)
+    """
+
+    label: str
+    mean: float
+    std: float = 0.0
 
 
 def _pyplot() -> Any:
@@ -63,7 +80,11 @@ def align_runs(runs: list[dict[int, float]]) -> np.ndarray:
 
 
 def plot_returns(
-    runs: Sequence[tuple[str, RunDirectory]], output: Path, metric: str = "mean_return", title: str | None = None
+    runs: Sequence[tuple[str, RunDirectory]],
+    output: Path,
+    metric: str = "mean_return",
+    title: str | None = None,
+    references: Sequence[Reference] = (),
 ) -> Path:
     """
     GPI's ``metric`` over iterations (each run's summary rows), mean ± std over the runs of an algorithm.
@@ -72,6 +93,7 @@ def plot_returns(
     :param output: the PNG file
     :param metric: a column of the summary (:data:`~sb3_sfgpi.run_directory.SUMMARY_FIELDS`)
     :param title: the title (default: a description of the curve)
+    :param references: horizontal lines (dashed, with a band of ± their std) in the metric's units
     """
     curves: dict[str, list[dict[int, float]]] = {}
     for algorithm, run_dir in runs:
@@ -88,6 +110,11 @@ def plot_returns(
         n = len(values_by_run)
         ax.plot(iterations, mean, marker="o", label=f"{LABELS.get(algorithm, algorithm)} ({n} seed{'s' * (n > 1)})")
         ax.fill_between(iterations, mean - std, mean + std, alpha=0.2)
+    for reference in references:
+        low, high = reference.mean - reference.std, reference.mean + reference.std
+        line = ax.axhline(reference.mean, linestyle="--", linewidth=1.2, label=reference.label)
+        if reference.std > 0:
+            ax.axhspan(low, high, color=line.get_color(), alpha=0.1)
     ax.set_xlabel("iteration")
     ax.xaxis.set_major_locator(_pyplot().MaxNLocator(integer=True))
     ax.set_ylabel(metric.replace("_", " "))

@@ -72,6 +72,8 @@ def test_stored_arrays_returns_every_valid_stored_transition(optimize_memory_usa
     # Once full, one array for obs and next obs loses the oldest step's next observation to the newest step.
     kept = range(max(0, n_added - 8 + optimize_memory_usage * (n_added > 8)), n_added)
     expected = sorted((10 * i + e, (i + e) % 3, 10 * (i + 1) + e, i, e) for i in kept for e in (0, 1))
-    got = sorted(zip(obs.reshape(-1).tolist(), actions.tolist(), next_obs.reshape(-1).tolist(), *rewards.T.tolist()))
+    got = sorted(
+        zip(obs.reshape(-1).tolist(), actions.tolist(), next_obs.reshape(-1).tolist(), *rewards.T.tolist(), strict=True)
+    )
     assert got == [tuple(float(x) if k >= 3 else x for k, x in enumerate(row)) for row in expected]
     assert not dones.any()

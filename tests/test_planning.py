@@ -42,7 +42,7 @@ def test_sweeps_reach_value_iteration_on_the_empirical_model(seed, gamma):
     expected = np.zeros((n_states, n_actions, 2))
     for _ in range(2_000):
         previous, expected = expected, np.zeros_like(expected)
-        for s, a in set(zip(rows.tolist(), actions.tolist())):
+        for s, a in set(zip(rows.tolist(), actions.tolist(), strict=True)):
             seen = (rows == s) & (actions == a)
             following = previous[next_rows[seen], (previous[next_rows[seen]] @ w).argmax(axis=1)]
             expected[s, a] = np.mean(rewards[seen] + gamma * (1 - dones[seen])[:, None] * following, axis=0)

@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sb3_sfgpi import plots
+from sb3_sfgpi.cli import main
 from sb3_sfgpi.run_directory import RunDirectory
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -43,6 +44,7 @@ def figures(monkeypatch) -> list[dict]:
 
 def write_run(path, mean_returns, hypervolumes=None) -> RunDirectory:
     run_dir = RunDirectory(path)
+    run_dir.write_config({"domain": "four-room", "algorithm": "ma-sfols"})
     history = []
     for i, value in enumerate(mean_returns):
         history.append(
@@ -94,6 +96,68 @@ def test_plot_returns_of_another_metric_skips_empty_cells(tmp_path, figures):
     assert (ax["xlabel"], ax["ylabel"], ax["title"]) == ("iteration", "hypervolume", "my title")
     np.testing.assert_allclose(ax["lines"][0][1], [[2, 10.0], [3, 12.0]])
     assert ax["legend"] == ["fixed-weight learners (1 seed)"]
+
+
+def test_plot_returns_draws_reference_lines(tmp_path, figures):
+    run = write_run(tmp_path / "a", [1.0, 2.0])
+    references = [plots.Reference("a priori", 1.5, 0.1), plots.Reference("exact optimum", 2.5)]
+    plots.plot_returns([("ma-sfols", run)], tmp_path / "r.png", references=references)
+    (ax,) = figures[0]["axes"]
+    lines = dict(ax["lines"])
+    assert lines["a priori"][:, 1].tolist() == [1.5, 1.5] and lines["exact optimum"][:, 1].tolist() == [2.5, 2.5]
+    assert ax["legend"] == ["MA-SFOLS + GPI (1 seed)", "a priori", "exact optimum"]
+
+
+def write_fixed_run(path, w, seed, at_w, elsewhere=0.0) -> RunDirectory:
+    """A fixed-weight run for ``w``, evaluated at ``w`` (discounted returns ``at_w`` of its two agents, per
+    objective) and at one other test weight."""
+    run_dir = RunDirectory(path)
+    run_dir.write_config({"domain": "four-room", "algorithm": "fixed", "seed": seed, "weights": w})
+    test = [
+        {"weights": [1.0, 0.0], "agents": {"a": {"discounted": [elsewhere, 0.0]}, "b": {"discounted": [elsewhere, 0]}}},
+        {"weights": w, "agents": {"a": {"discounted": at_w[0]}, "b": {"discounted": at_w[1]}}},
+    ]
+    run_dir.write_iteration([{"iteration": 0, "test": test}], {"iteration": 1, "timesteps": 0, "n_policies": 1})
+    return run_dir
+
+
+def test_plot_fixed_runs_draw_the_a_priori_learners_at_their_own_weights(tmp_path, figures):
+    run = write_run(tmp_path / "ols", [1.0, 2.0])
+    fixed = [
+        write_fixed_run(tmp_path / "f0", [0.5, 0.5], 0, ([2.0, 0.0], [0.0, 2.0])),  # 1.0 at its weight
+        write_fixed_run(tmp_path / "f1", [0.0, 1.0], 0, ([0.0, 3.0], [9.0, 1.0]), elsewhere=50.0),  # 2.0
+        write_fixed_run(tmp_path / "f2", [0.5, 0.5], 1, ([4.0, 0.0], [4.0, 0.0])),  # 2.0
+        write_fixed_run(tmp_path / "f3", [0.0, 1.0], 1, ([0.0, 4.0], [0.0, 4.0])),  # 4.0
+    ]
+    argv = ["plot", str(run.path), "-o", str(tmp_path / "r.png"), "--reference", "exact optimum=3.25"]
+    assert main([*argv, "--fixed", *(str(f.path) for f in fixed)]) == 0
+    (ax,) = figures[0]["axes"]
+    label = "learners trained a priori (4 runs, 2 seeds)"
+    assert ax["legend"] == ["MA-SFOLS + GPI (1 seed)", label, "exact optimum"]
+    lines = dict(ax["lines"])
+    assert lines[label][0, 1] == pytest.approx((1.5 + 3.0) / 2) and lines["exact optimum"][0, 1] == 3.25
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--reference", "optimum"], "--reference expects LABEL=NUMBER, got 'optimum'"),
+        (["--reference", "optimum=high"], "--reference expects LABEL=NUMBER"),
+        (["--reference", "=1.0"], "--reference expects LABEL=NUMBER"),
+        (["--fixed", "OLS"], "is not a run of `train --algo fixed`"),
+        (["--fixed", "FIXED", "--metric", "hypervolume"], "--fixed draws the a-priori learners' mean_return"),
+        (["--fixed", "ELSEWHERE"], "was not evaluated at its own weight"),
+    ],
+)
+def test_plot_refuses_bad_references(tmp_path, capsys, extra, message):
+    run = write_run(tmp_path / "ols", [1.0])
+    write_fixed_run(tmp_path / "fixed", [0.5, 0.5], 0, ([1.0, 1.0], [1.0, 1.0]))
+    elsewhere = write_fixed_run(tmp_path / "elsewhere", [0.3, 0.7], 0, ([1.0, 1.0], [1.0, 1.0]))
+    elsewhere.write_config({"domain": "four-room", "algorithm": "fixed", "seed": 0, "weights": [0.9, 0.1]})
+    paths = {"OLS": run.path, "FIXED": tmp_path / "fixed", "ELSEWHERE": elsewhere.path}
+    extra = [str(paths.get(item, item)) for item in extra]
+    assert main(["plot", str(run.path), "-o", str(tmp_path / "r.png"), *extra]) == 2
+    assert message in capsys.readouterr().err
 
 
 def test_plot_returns_needs_evaluations(tmp_path):

@@ -7,6 +7,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from sb3_sfgpi import plots
 from sb3_sfgpi.cli.compare import COMPARE_FORMAT
 from sb3_sfgpi.cli.errors import UsageError
@@ -34,6 +36,22 @@ def add_parser(sub: Any) -> None:
     metrics = [field for field in SUMMARY_FIELDS if field not in ("iteration", "timesteps", "wall_time", "eval_time")]
     plot.add_argument("--metric", default="mean_return", choices=metrics)
     plot.add_argument("--title", default=None)
+    plot.add_argument(
+        "--fixed",
+        type=Path,
+        nargs="+",
+        default=[],
+        metavar="RUN",
+        help="returns: runs of `train --algo fixed`, one per test weight and seed; the mean over the weights of "
+        "each learner's return at its own weight is drawn as the a-priori reference (mean ± std over seeds)",
+    )
+    plot.add_argument(
+        "--reference",
+        action="append",
+        default=[],
+        metavar="LABEL=VALUE",
+        help="returns: a horizontal line at VALUE, e.g. 'exact optimum=1.3548' (repeat the option for more)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -52,7 +70,53 @@ def _returns(args: argparse.Namespace) -> list[Path]:
         if not run_dir.has_evaluations():
             raise UsageError(f"{path} has no evaluation yet")
         runs.append((config.get("algorithm", "run"), run_dir))
-    return [plots.plot_returns(runs, args.output, args.metric, args.title)]
+    references = [_reference(item) for item in args.reference]
+    if args.fixed:
+        if args.metric != "mean_return":
+            raise UsageError(f"--fixed draws the a-priori learners' mean_return, not {args.metric}")
+        references.insert(0, a_priori_reference(args.fixed))
+    return [plots.plot_returns(runs, args.output, args.metric, args.title, references)]
+
+
+def _reference(item: str) -> plots.Reference:
+    label, _, value = item.rpartition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = float("nan")
+    if not label or not np.isfinite(number):
+        raise UsageError(f"--reference expects LABEL=NUMBER, got {item!r}")
+    return plots.Reference(label, number)
+
+
+def a_priori_reference(paths: list[Path]) -> plots.Reference:
+    """
+    The learners trained a priori for each test weight: per seed, the mean over the fixed-weight runs of their
+    last evaluation's ``w · discounted return`` at their own weight ``w`` (the test weight within 1e-3 of it, max-norm;
+    mean over agents); mean ± std over seeds.
+
+    :raises UsageError: a run that is not a fixed-weight run, or whose weight is not among its test weights
+    """
+    by_seed: dict[int, list[float]] = {}
+    for path in paths:
+        run_dir = RunDirectory(path)
+        config = run_dir.read_config()
+        if config.get("algorithm") != "fixed":
+            raise UsageError(f"--fixed: {path} is not a run of `train --algo fixed`")
+        w = np.asarray(config["weights"], dtype=np.float64)
+        if not run_dir.has_evaluations():
+            raise UsageError(f"--fixed: {path} has no evaluation yet")
+        at_w = [
+            row for row in run_dir.read_history()[-1]["test"] if np.abs(np.asarray(row["weights"]) - w).max() <= 1e-3
+        ]
+        if not at_w:
+            raise UsageError(f"--fixed: {path} was not evaluated at its own weight {w.tolist()}")
+        returns = [w @ np.asarray(agent["discounted"]) for agent in at_w[0]["agents"].values()]
+        by_seed.setdefault(int(config["seed"]), []).append(float(np.mean(returns)))
+    means = [np.mean(values) for values in by_seed.values()]
+    n = len(means)
+    label = f"learners trained a priori ({len(paths)} runs, {n} seed{'s' * (n > 1)})"
+    return plots.Reference(label, float(np.mean(means)), float(np.std(means)))
 
 
 def _from_comparison(args: argparse.Namespace) -> list[Path]:

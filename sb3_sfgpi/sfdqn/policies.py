@@ -295,7 +295,21 @@ class TabularPolicy(SFDQNPolicy):
         q_values = psi @ np.asarray(weights, dtype=np.float32)
         return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
 
-    def plan(self, replay_buffer: MOReplayBuffer, gamma: float, max_sweeps: int) -> int:
+    def fill(self, value: float) -> None:
+        """
+        Set every entry of the table (and of its target) to ``value``: optimistic initial values when ``value`` is
+        above what the policy can get.
+
+        :param value: the value of every component of ``ψ(s, a)``, for every pair
+        """
+        with th.no_grad():
+            self.sf_net.table.weight.fill_(value)
+        if self.sf_net_target is not self.sf_net:
+            self.sf_net_target.load_state_dict(self.sf_net.state_dict())
+
+    def plan(
+        self, replay_buffer: MOReplayBuffer, gamma: float, max_sweeps: int, untried_value: float | None = None
+    ) -> int:
         """
         Dyna-style planning: sweeps of the SF backup over every pair recorded in the replay buffer (see
         :class:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel`); a separate target table is then set to the result.
@@ -303,17 +317,23 @@ class TabularPolicy(SFDQNPolicy):
         :param replay_buffer: the transitions that make the model
         :param gamma: discount factor
         :param max_sweeps: most sweeps to do
+        :param untried_value: if given, every pair not recorded in the buffer first gets ``ψ`` of this value in
+            each component (0: what a fresh table holds), so that the sweeps back up no other value for them
         :return: the number of sweeps done
         """
         net = self.sf_net
         entries = self._entries(net)
         obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
-        if len(actions) == 0:
-            return 0
-        model = EmpiricalModel.from_transitions(
-            net.rows(obs), actions, net.rows(next_obs), dones, rewards, net.table.num_embeddings, net.n_actions
-        )
-        sweeps = model.sweep(entries, self.weights.numpy(), gamma, max_sweeps)
+        tried, sweeps = np.zeros(len(entries), dtype=bool), 0
+        if len(actions):
+            model = EmpiricalModel.from_transitions(
+                net.rows(obs), actions, net.rows(next_obs), dones, rewards, net.table.num_embeddings, net.n_actions
+            )
+            tried[model.entries] = True
+        if untried_value is not None:
+            entries[~tried] = untried_value
+        if len(actions):
+            sweeps = model.sweep(entries, self.weights.numpy(), gamma, max_sweeps)
         if self.sf_net_target is not net:
             self.sf_net_target.load_state_dict(net.state_dict())
         return sweeps

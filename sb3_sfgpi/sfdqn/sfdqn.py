@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -23,15 +24,19 @@ from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
 
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 
+#: Most sweeps :meth:`SFDQN.settle` does (γ = 0.99 reaches the tolerance in about 2,000).
+SETTLE_SWEEPS = 10_000
+
 
 def _check_options(
     n_steps: int,
     replay_buffer_class: type[ReplayBuffer] | None,
     planning_sweeps: int,
     planning_interval: int,
+    optimistic_init: float,
     policy_class: type,
 ) -> None:
-    """Refuse the SB3 options SFDQN does not support and bad planning options, with a ``ValueError``."""
+    """Refuse the SB3 options SFDQN does not support and bad planning or optimism options, with a ``ValueError``."""
     if n_steps != 1:
         raise ValueError(f"SFDQN supports only 1-step returns (n_steps=1), got n_steps={n_steps}")
     if replay_buffer_class is not None and not issubclass(replay_buffer_class, MOReplayBuffer):
@@ -44,6 +49,10 @@ def _check_options(
         raise ValueError(f"planning_interval must be an integer >= 1, got {planning_interval!r}")
     if planning_sweeps and not issubclass(policy_class, TabularPolicy):
         raise ValueError(f"planning (planning_sweeps > 0) needs TabularPolicy, got {policy_class.__name__}")
+    if not isinstance(optimistic_init, (int, float)) or not math.isfinite(optimistic_init):
+        raise ValueError(f"optimistic_init must be a finite number, got {optimistic_init!r}")
+    if optimistic_init and not planning_sweeps:
+        raise ValueError("optimistic_init needs planning (planning_sweeps > 0): planning settles the optimism")
 
 
 class SFDQN(OffPolicyAlgorithm):
@@ -83,6 +92,13 @@ class SFDQN(OffPolicyAlgorithm):
         up to this many sweeps of the SF backup over every pair recorded in the replay buffer
         (:meth:`~sb3_sfgpi.sfdqn.policies.TabularPolicy.plan`); 0 for none
     :param planning_interval: Env steps between two plannings
+    :param optimistic_init: optimistic initial values (``TabularPolicy`` with planning only; 0 for none): every
+        entry of the table starts at this value, so the greedy behaviour tries the pairs it has not tried yet, and
+        planning carries their promise to the states that lead to them (directed exploration, as R-max). At the end
+        of :meth:`learn`, :meth:`settle` removes it: the pairs never tried get 0 and the table is planned until it
+        converges, so the trained policy never counts on an action it has not tried. Pick a value of the order of the
+        values the task gives: the higher, the more of the state space is explored (on ``four-room-v0``, whose
+        optimal values are 1.1–1.8, 1.25 did better than 1.5 and 2)
     :param stats_window_size: Window size for the rollout logging
     :param tensorboard_log: The log location for tensorboard (if None, no logging)
     :param policy_kwargs: Additional arguments to be passed to the policy on creation
@@ -125,6 +141,7 @@ class SFDQN(OffPolicyAlgorithm):
         max_grad_norm: float = 10,
         planning_sweeps: int = 0,
         planning_interval: int = 5_000,
+        optimistic_init: float = 0.0,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -134,7 +151,7 @@ class SFDQN(OffPolicyAlgorithm):
         _init_setup_model: bool = True,
     ) -> None:
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
-        _check_options(n_steps, replay_buffer_class, planning_sweeps, planning_interval, policy_class)
+        _check_options(n_steps, replay_buffer_class, planning_sweeps, planning_interval, optimistic_init, policy_class)
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
         super().__init__(
             policy,
@@ -170,6 +187,7 @@ class SFDQN(OffPolicyAlgorithm):
         self.max_grad_norm = max_grad_norm
         self.planning_sweeps = planning_sweeps
         self.planning_interval = planning_interval
+        self.optimistic_init = float(optimistic_init)
         self._plannings = 0  # plannings done: one each time num_timesteps passes a multiple of planning_interval
         self.exploration_rate = 0.0
         if self.env is not None:
@@ -192,6 +210,8 @@ class SFDQN(OffPolicyAlgorithm):
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )
         self.set_weights(self._weights)
+        if self.optimistic_init:
+            self.policy.fill(self.optimistic_init)  # type: ignore[attr-defined]
 
     @property
     def weights(self) -> np.ndarray:
@@ -345,7 +365,7 @@ class SFDQN(OffPolicyAlgorithm):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfSFDQN:
-        return super().learn(
+        super().learn(
             total_timesteps=total_timesteps,
             callback=callback,
             log_interval=log_interval,
@@ -353,6 +373,18 @@ class SFDQN(OffPolicyAlgorithm):
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
         )
+        self.settle()
+        return self
+
+    def settle(self) -> None:
+        """
+        Remove the optimistic initial values (``optimistic_init``; nothing to do without): the pairs not in the
+        replay buffer get ``ψ = 0``, and the recorded ones are planned until no entry moves by more than
+        :data:`~sb3_sfgpi.sfdqn.planning.TOLERANCE` (at most :data:`SETTLE_SWEEPS` sweeps). Called at the end of
+        :meth:`learn`; a later :meth:`learn` goes on from the settled table, without optimism.
+        """
+        if self.optimistic_init:
+            self.policy.plan(self.replay_buffer, self.gamma, SETTLE_SWEEPS, untried_value=0.0)  # type: ignore[attr-defined]
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "exploration_schedule"]
