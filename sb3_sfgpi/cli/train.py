@@ -105,8 +105,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any]:
     """What the run is, from the preset and the options: stored in ``run.json`` (the MASFOLS settings join it)."""
-    iterations = args.iterations or preset.iterations
-    steps_per_iteration = args.steps_per_iteration or preset.steps_per_iteration
+    iterations = preset.iterations if args.iterations is None else args.iterations
+    steps_per_iteration = preset.steps_per_iteration if args.steps_per_iteration is None else args.steps_per_iteration
     n_test_weights = preset.n_test_weights if args.n_test_weights is None else args.n_test_weights
     for name, value in (
         ("--iterations", iterations),

@@ -32,10 +32,11 @@ def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndar
         raise ValueError(f"{name} must be finite, got {w.tolist()} (NaN or inf)")
     if np.any(w < 0):
         raise ValueError(f"{name} must be non-negative, got {w.tolist()}")
-    total = w.sum()
-    if total <= 0:
+    largest = w.max()
+    if largest <= 0:
         raise ValueError(f"{name} must not be all zero, got {w.tolist()}")
-    return w / total
+    w = w / largest  # first into [0, 1]: the sum of huge weights would overflow to inf
+    return w / w.sum()
 
 
 def simplex_extrema(reward_dim: int) -> list[np.ndarray]:

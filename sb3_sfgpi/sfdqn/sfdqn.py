@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -29,6 +30,8 @@ SETTLE_SWEEPS = 10_000
 
 
 def _check_options(
+    gamma: float,
+    batch_size: int,
     n_steps: int,
     replay_buffer_class: type[ReplayBuffer] | None,
     planning_sweeps: int,
@@ -36,7 +39,11 @@ def _check_options(
     optimistic_init: float,
     policy_class: type,
 ) -> None:
-    """Refuse the SB3 options SFDQN does not support and bad planning or optimism options, with a ``ValueError``."""
+    """Refuse out-of-range options, SB3 options SFDQN does not support and bad planning or optimism options."""
+    if not isinstance(gamma, numbers.Real) or not 0.0 <= gamma <= 1.0:
+        raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
     if n_steps != 1:
         raise ValueError(f"SFDQN supports only 1-step returns (n_steps=1), got n_steps={n_steps}")
     if replay_buffer_class is not None and not issubclass(replay_buffer_class, MOReplayBuffer):
@@ -49,7 +56,7 @@ def _check_options(
         raise ValueError(f"planning_interval must be an integer >= 1, got {planning_interval!r}")
     if planning_sweeps and not issubclass(policy_class, TabularPolicy):
         raise ValueError(f"planning (planning_sweeps > 0) needs TabularPolicy, got {policy_class.__name__}")
-    if not isinstance(optimistic_init, (int, float)) or not math.isfinite(optimistic_init):
+    if not isinstance(optimistic_init, numbers.Real) or not math.isfinite(optimistic_init):
         raise ValueError(f"optimistic_init must be a finite number, got {optimistic_init!r}")
     if optimistic_init and not planning_sweeps:
         raise ValueError("optimistic_init needs planning (planning_sweeps > 0): planning settles the optimism")
@@ -151,7 +158,16 @@ class SFDQN(OffPolicyAlgorithm):
         _init_setup_model: bool = True,
     ) -> None:
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
-        _check_options(n_steps, replay_buffer_class, planning_sweeps, planning_interval, optimistic_init, policy_class)
+        _check_options(
+            gamma,
+            batch_size,
+            n_steps,
+            replay_buffer_class,
+            planning_sweeps,
+            planning_interval,
+            optimistic_init,
+            policy_class,
+        )
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
         super().__init__(
             policy,
