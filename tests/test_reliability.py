@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from conftest import FIG1_TABULAR_KWARGS
 from momdp import Fig1MOMDP
 
+from sb3_sfgpi.cli import main, parse_args
+from sb3_sfgpi.cli.train import _stopped_message
 from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.sfdqn import SFDQN
 
 
@@ -54,3 +58,33 @@ def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, argv, mess
 def test_numpy_scalars_are_accepted_as_options():
     model = SFDQN("TabularPolicy", Fig1MOMDP(), gamma=np.float32(0.9), batch_size=np.int64(4), learning_starts=0)
     assert model.gamma == pytest.approx(0.9) and model.batch_size == 4
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["--steps-per-iteration", "200"],
+            "--steps-per-iteration 200 would change the run's steps_per_iteration (150)",
+        ),
+        (["--n-test-weights", "5"], "--n-test-weights 5 would change the run's n_test_weights (2)"),
+        (["--transfer"], "--transfer True would change the run's transfer (False)"),
+    ],
+)
+def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):
+    out = str(tmp_path / "run")
+    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "150", "--n-test-weights", "2"]
+    assert main([*train, "--no-progress", "--out", out]) == 0
+    resume = ["train", "four-room", "--iterations", "2", "--no-progress", "--out", out, "--resume"]
+    assert main([*resume, *argv]) == 2
+    assert message in capsys.readouterr().err
+    assert main(resume) == 0  # the options not given keep the run's
+
+
+def test_the_stop_message_repeats_the_iteration_cap(tmp_path):
+    args = parse_args(["train", "four-room", "--iterations", "3", "--out", str(tmp_path)])
+    model = SimpleNamespace(settings={"weights": "ols"}, callback=SimpleNamespace(iteration=1))
+    message = _stopped_message(args, RunDirectory(tmp_path), model, KeyboardInterrupt())
+    assert message.endswith(
+        f"`sb3-sfgpi train four-room --algo ma-sfols --seed 0 --out {tmp_path} --resume --iterations 3`"
+    )

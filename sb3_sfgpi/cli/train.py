@@ -158,13 +158,17 @@ def _default_name(args: argparse.Namespace, config: dict[str, Any]) -> str:
 
 
 def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dict[str, Any]) -> dict[str, Any]:
-    """The stored configuration with the new iteration cap; refuses options that would change the run."""
+    """The stored configuration with the new iteration cap; refuses options given that would change the run."""
     if not run_dir.is_run():
         raise UsageError(f"--resume: {run_dir} is not a run directory (no {RunDirectory.RUN})")
     saved = run_dir.read_config()
     for option, key in (("--env", "env_kwargs"), ("--learner", "learner_kwargs")):
         if getattr(args, option[2:]) and config[key] != saved.get(key):
             raise UsageError(f"--resume: {option} would change the run's {key} ({saved.get(key)})")
+    for option in ("--steps-per-iteration", "--n-test-weights", "--transfer"):
+        key = option[2:].replace("-", "_")
+        if getattr(args, key) not in (None, False) and config[key] != saved.get(key):
+            raise UsageError(f"--resume: {option} {config[key]} would change the run's {key} ({saved.get(key)})")
     for key in ("domain", "algorithm", "seed", "weights"):
         if saved.get(key) != config.get(key):
             raise UsageError(f"--resume: {run_dir} is a run with {key}={saved.get(key)!r}, not {config.get(key)!r}")
@@ -211,8 +215,10 @@ def _stopped_message(args: argparse.Namespace, run_dir: RunDirectory, model: MAS
     return (
         f"training stopped in iteration {model.callback.iteration} ({reason}). The checkpoint of the last finished "
         f"iteration ({done} done) in {run_dir} is intact: continue with "
-        f"`sb3-sfgpi train {args.domain} --algo {args.algo} --seed {args.seed} --out {run_dir} --resume`"
+        f"`sb3-sfgpi train {args.domain} --algo {args.algo} --seed {args.seed} --out {run_dir} --resume"
+        + ("" if args.iterations is None else f" --iterations {args.iterations}")
         + ("" if isinstance(weights, str) else " --w " + " ".join(f"{x:g}" for x in weights))
+        + "`"
     )
 
 
