@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 from pettingzoo import ParallelEnv
-from stable_baselines3.common.logger import configure
 from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, ValueEstimation
@@ -128,7 +127,7 @@ class MASFOLS:
         )
         self.run_info = {**dict(run_info or {}), **self.settings}
         if self.run_dir is not None:
-            self.runner.set_logger(configure(str(self.run_dir.logs_dir), ["csv", "tensorboard"]))
+            self.runner.set_logger(self.run_dir.make_logger())
 
     def _test_weights(self, test_weights: Any, fixed: Any) -> np.ndarray:
         if test_weights is None and fixed is not None:

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import torch as th
+from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoardOutputFormat
 
 from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json, read_json
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
@@ -89,6 +90,17 @@ class RunDirectory:
     @property
     def logs_dir(self) -> Path:
         return self.path / "logs"
+
+    def make_logger(self) -> Logger:
+        """
+        The runner's SB3 logger on ``logs/``: ``progress.csv`` (one row per finished iteration) and TensorBoard.
+        An existing ``progress.csv`` is continued, not truncated: it keeps its header and the rows of the
+        iterations the checkpoint counts (those of an iteration killed before its checkpoint are dropped).
+        """
+        self.logs_dir.mkdir(parents=True, exist_ok=True)
+        done = self.read_checkpoint()["iteration"] if self.has_checkpoint() else 0
+        progress = _ContinuedCSV(str(self.logs_dir / "progress.csv"), keep_rows=done)
+        return Logger(str(self.logs_dir), [progress, TensorBoardOutputFormat(str(self.logs_dir))])
 
     @property
     def tensorboard_dir(self) -> Path:
@@ -197,3 +209,19 @@ class RunDirectory:
             raise ValueError(f"{self.path} has no {self.EVALUATION_CSV} yet")
         with open(self.path / self.EVALUATION_CSV, newline="") as handle:
             return list(csv.DictReader(handle))
+
+
+class _ContinuedCSV(CSVOutputFormat):
+    """SB3's CSV output, continuing an existing file from its header and its first ``keep_rows`` rows."""
+
+    def __init__(self, filename: str, keep_rows: int):
+        path = Path(filename)
+        lines = path.read_text().splitlines(keepends=True) if path.exists() else []
+        kept = lines[: 1 + keep_rows]
+        if kept != lines:
+            atomic_write_bytes(path, "".join(kept).encode())
+        self.file = open(filename, "r+" if path.exists() else "w+")  # noqa: SIM115 (SB3 closes it)
+        self.file.seek(0, io.SEEK_END)
+        self.keys: list[str] = next(csv.reader(kept[:1]), [])
+        self.separator = ","
+        self.quotechar = '"'

@@ -161,12 +161,7 @@ def test_a_second_learn_continues_or_is_refused():
     assert len(model.callback.schedule.ols.values) >= 1  # the values of Π are still recorded
 
 
-# --- known problems (strict xfail: remove the mark once fixed) --------------------------------------------------
-@pytest.mark.xfail(
-    strict=True,
-    reason="MASFOLS.__init__ configures SB3's CSV logger on run_dir/logs, which opens progress.csv with mode 'w+': "
-    "building a MASFOLS on an existing run (refused, or MASFOLS.load) truncates the run's logs",
-)
+# --- logs across resumes -----------------------------------------------------------------------------------------
 def test_an_existing_runs_logs_survive_a_refused_learn_and_a_load(tmp_path):
     make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=2)
     progress = tmp_path / "logs" / "progress.csv"
@@ -177,3 +172,14 @@ def test_an_existing_runs_logs_survive_a_refused_learn_and_a_load(tmp_path):
     assert progress.read_text() == before
     MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=3)
     assert len(progress.read_text().splitlines()) == 4
+
+
+def test_a_killed_iterations_log_row_is_replaced_on_resume(tmp_path):
+    make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=2)
+    progress = tmp_path / "logs" / "progress.csv"
+    finished = progress.read_text()
+    progress.write_text(finished + finished.splitlines(keepends=True)[-1])  # a row logged, then killed: no checkpoint
+    MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=3)
+    rows = progress.read_text().splitlines()
+    assert progress.read_text().startswith(finished) and len(rows) == 4
+

@@ -32,10 +32,10 @@ def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndar
         raise ValueError(f"{name} must be finite, got {w.tolist()} (NaN or inf)")
     if np.any(w < 0):
         raise ValueError(f"{name} must be non-negative, got {w.tolist()}")
-    largest = w.max()
-    if largest <= 0:
+    if w.max() <= 0:
         raise ValueError(f"{name} must not be all zero, got {w.tolist()}")
-    w = w / largest  # first into [0, 1]: the sum of huge weights would overflow to inf
+    if not np.isfinite(w.sum()):  # huge weights: into [0, 1] first, as their sum overflows
+        w = w / w.max()
     return w / w.sum()
 
 
