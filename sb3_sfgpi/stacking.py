@@ -55,9 +55,7 @@ class StackedTables:
     def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """GPI action values of a batch, in numpy (CPU sets): cheaper than torch for a few small operations."""
         assert self.tables_numpy is not None
-        index = self.rows(obs)
-        if index.size and (index.min() < 0 or index.max() >= self.n_states):
-            raise IndexError(f"observation outside the table ({self.n_states} rows): {obs.tolist()}")
+        index = self.rows(obs)  # raises ValueError for an observation outside the space
         rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
         return (rows @ weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
 

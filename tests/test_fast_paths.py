@@ -67,9 +67,9 @@ def test_weights_are_validated_on_every_call_even_when_cached(make_random_tabula
 def test_tabular_gpi_refuses_observations_outside_the_table(make_random_tabular):
     policy_set = GPIPolicy()
     policy_set.add(make_random_tabular(0), weights=[1.0, 1.0, 1.0])  # MultiDiscrete([3, 4, 2])
-    with pytest.raises(IndexError):
+    with pytest.raises(ValueError, match=r"observation \[3, 3, 1\] is outside the observation space"):
         policy_set.predict(np.array([3, 3, 1]), [1.0, 0.0, 0.0])
-    with pytest.raises(IndexError):
+    with pytest.raises(ValueError, match=r"observation \[-1, 0, 0\] is outside the observation space"):
         policy_set.predict(np.array([-1, 0, 0]), [1.0, 0.0, 0.0])
 
 

@@ -14,6 +14,7 @@ from momdp import Fig1MOMDP
 from sb3_sfgpi.cli import main, parse_args
 from sb3_sfgpi.cli.train import _stopped_message
 from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.sfdqn import SFDQN
 
@@ -88,3 +89,30 @@ def test_the_stop_message_repeats_the_iteration_cap(tmp_path):
     assert message.endswith(
         f"`sb3-sfgpi train four-room --algo ma-sfols --seed 0 --out {tmp_path} --resume --iterations 3`"
     )
+
+
+def four_room_tabular_model() -> SFDQN:
+    from sfgpi_envs.four_room import FourRoomParallelEnv
+
+    from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+
+    runner = MultiAgentRunner(
+        FourRoomParallelEnv(observation_mode="own"), default_learner_factory(policy="TabularPolicy")
+    )
+    runner.start_iteration({agent: np.ones(3) / 3 for agent in runner.agents}, iteration=0, total_timesteps=1)
+    return runner.learners["agent_0"]
+
+
+@pytest.mark.parametrize(
+    "observation",
+    [[12, 0, 2] + [0] * 11, [13, 0] + [0] * 12, [-1, 0] + [0] * 12, [12.7, 0] + [0] * 12],
+    ids=["flag-2", "row-13", "row-minus-1", "row-12.7"],
+)
+def test_tabular_predict_refuses_observations_outside_the_space(observation):
+    model = four_room_tabular_model()
+    policy_set = GPIPolicy()
+    policy_set.add(model)
+    for predict in (lambda obs: model.predict(obs, deterministic=True), lambda obs: policy_set.predict(obs, [1, 0, 0])):
+        with pytest.raises(ValueError, match=r"observation \[.*\] is outside the observation space MultiDiscrete"):
+            predict(np.array(observation))
+    assert model.predict(np.array([12, 0] + [0] * 12), deterministic=True)[0] in range(4)

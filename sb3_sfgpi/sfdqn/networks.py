@@ -187,7 +187,7 @@ class TabularSFNetwork(BasePolicy):
                 "use MlpPolicy"
             )
         strides = np.concatenate([np.cumprod(n_values[::-1])[::-1][1:], [1]]).astype(np.int64)
-        self._low, self._strides = low.astype(np.int64), strides
+        self._low, self._strides, self._n_values = low.astype(np.int64), strides, n_values.astype(np.int64)
         self.register_buffer("low", th.as_tensor(low, dtype=th.long), persistent=False)
         self.register_buffer("strides", th.as_tensor(strides, dtype=th.long), persistent=False)
         self.reward_dim = reward_dim
@@ -196,14 +196,25 @@ class TabularSFNetwork(BasePolicy):
         nn.init.zeros_(self.table.weight)
 
     def rows(self, obs: np.ndarray) -> np.ndarray:
-        """Numpy twin of :meth:`state_index`: row indices of raw observations, shape ``(batch,)``."""
-        components = np.asarray(obs, dtype=np.int64).reshape(len(obs), -1) - self._low
+        """
+        Numpy twin of :meth:`state_index`: row indices of raw observations, shape ``(batch,)``.
+
+        :raises ValueError: an observation outside the observation space (it would index another state's row)
+        """
+        raw = np.asarray(obs)
+        components = raw.astype(np.int64).reshape(len(raw), -1) - self._low
+        outside = (components < 0) | (components >= self._n_values)
+        if raw.dtype.kind == "f":
+            outside |= (raw != np.floor(raw)).reshape(components.shape)
+        if outside.any():
+            first = raw[int(np.argmax(outside.any(axis=1)))].tolist()
+            raise ValueError(f"observation {first} is outside the observation space {self.observation_space}")
         return components @ self._strides
 
     def state_index(self, obs: th.Tensor) -> th.Tensor:
         """
         :param obs: raw integer observations, shape ``(batch,)`` or ``(batch, n_components)``
-        :return: row indices, shape ``(batch,)``
+        :return: row indices, shape ``(batch,)`` (unchecked: traced by ``torch.func.vmap``; :meth:`rows` checks)
         """
         components = obs.long().reshape(obs.shape[0], -1) - self.low
         return (components * self.strides).sum(dim=1)
