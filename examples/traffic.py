@@ -212,6 +212,7 @@ def run(args: argparse.Namespace) -> list[tuple[str, bool, str]]:
     _run([*argv, *(["--fixed", *map(str, fixed)] if fixed else []), "-o", str(compare_file)])
 
     figures = args.figures
+    figures.mkdir(parents=True, exist_ok=True)  # `sb3-sfgpi plot` writes only into directories that exist
     _run(["plot", *map(str, masfols), "-o", str(figures / "traffic_returns.png"),
           "--title", "Traffic: GPI return over iterations (25 test weights)"])  # fmt: skip
     _run(["plot", str(compare_file), "--kind", "steps", "-o", str(figures / "traffic")])

@@ -308,3 +308,21 @@ def test_moving_average_is_the_trailing_mean(values, window):
     for i in range(len(values)):
         expected = values[i] if window <= 1 else np.mean(values[max(0, i + 1 - window) : i + 1])
         assert smoothed[i] == pytest.approx(expected, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("output", "kind", "message"),
+    [
+        ("missing/dir/x.png", "returns", "the directory"),
+        ("existing_dir", "returns", "writes one .png file"),
+        ("x.pdf", "returns", "writes one .png file"),
+        ("a_file.png", "steps", "is a file"),
+    ],
+)
+def test_plot_writes_exactly_where_asked_or_refuses(tmp_path, capsys, output, kind, message):
+    run = write_run(tmp_path / "ols", [1.0])
+    (tmp_path / "existing_dir").mkdir()
+    (tmp_path / "a_file.png").write_bytes(b"")
+    assert main(["plot", str(run.path), "-o", str(tmp_path / output), "--kind", kind]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "missing").exists() and not (tmp_path / "existing_dir.png").exists()

@@ -56,10 +56,22 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Draw the figure(s) and print the files written."""
+    _check_output(args.output, args.kind)
     written = _returns(args) if args.kind == "returns" else _from_comparison(args)
     for path in written:
         print(f"wrote {path}")
     return 0
+
+
+def _check_output(output: Path, kind: str) -> None:
+    """Write exactly where asked: a .png file (returns, tradeoff) or a directory (steps, versus) in a directory that
+    exists."""
+    if kind in ("returns", "tradeoff") and (output.suffix.lower() != ".png" or output.is_dir()):
+        raise UsageError(f"-o {output}: --kind {kind} writes one .png file")
+    if kind not in ("returns", "tradeoff") and output.exists() and not output.is_dir():
+        raise UsageError(f"-o {output} is a file: --kind {kind} writes a directory of figures")
+    if not output.parent.is_dir():
+        raise UsageError(f"-o {output}: the directory {output.parent} does not exist")
 
 
 def _returns(args: argparse.Namespace) -> list[Path]:
