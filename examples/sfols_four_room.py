@@ -19,9 +19,8 @@ it, by design: with the exact values as its oracle OLS needs 99 iterations to en
 first 8 already cover 0.995 of the optimum on the test weights and its first 20 0.997 (``python -m benchmarks
 optimum``); the loop stops when OLS has no corner weight left or after ``--max-iterations``.
 
-The table is over the full observation (cell and which of the 12 objects were collected). MO-Gymnasium declares
-that observation as ``Box(0, 13, (14,))``, which would make a table of 14**14 rows; :class:`FullObservation`
-declares what it really is, ``MultiDiscrete([13, 13] + [2] * 12)`` (692,224 rows).
+The table is over the full observation (cell and which of the 12 objects were collected):
+``sfgpi_envs.mo_four_room.make_four_room`` declares its true space, ``MultiDiscrete([13, 13] + [2] * 12)``.
 
 Exploration: ε decays linearly from 1 to 0.05 over the first ``--exploration-fraction`` of each iteration, then
 stays at the paper's 0.05.
@@ -35,11 +34,10 @@ import argparse
 import time
 
 import gymnasium as gym
-import mo_gymnasium
 import numpy as np
 import torch as th
-from gymnasium import spaces
 from sfgpi_envs.four_room_optimum import FourRoomOptimum
+from sfgpi_envs.mo_four_room import make_four_room
 
 from sb3_sfgpi import SFDQN, GPIPolicy
 from sb3_sfgpi.ols import OLS
@@ -48,23 +46,6 @@ GAMMA = 0.95  # Table 1
 ALPHA = 0.1  # Table 1
 EPSILON = 0.05  # Table 1
 N_TEST_WEIGHTS = 12  # Four-Room test weights (paper Section 5)
-
-
-class FullObservation(gym.ObservationWrapper):
-    """Declare four-room's true observation space: the cell (row, column) and one collected-flag per object."""
-
-    def __init__(self, env: gym.Env):
-        super().__init__(env)
-        n_objects = env.observation_space.shape[0] - 2
-        height, width = env.unwrapped.maze.shape
-        self.observation_space = spaces.MultiDiscrete([height, width] + [2] * n_objects)
-
-    def observation(self, observation: np.ndarray) -> np.ndarray:
-        return np.asarray(observation, dtype=np.int64)
-
-
-def make_env() -> gym.Env:
-    return FullObservation(mo_gymnasium.make("four-room-v0"))
 
 
 def discounted_return(env: gym.Env, act, gamma: float, seed: int) -> np.ndarray:
@@ -112,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     th.set_num_threads(1)  # tiny tensors: threads only add overhead
 
-    env = make_env()
+    env = make_four_room()
     reward_dim = env.unwrapped.reward_dim
     test_weights = np.random.default_rng(0).dirichlet(np.ones(reward_dim), size=N_TEST_WEIGHTS)
     exact = FourRoomOptimum.from_env(env, GAMMA)
@@ -131,7 +112,7 @@ def main(argv: list[str] | None = None) -> None:
             break
         model = SFDQN(
             "TabularPolicy",
-            make_env(),
+            make_four_room(),
             weights=w,
             learning_rate=ALPHA,
             gamma=GAMMA,

@@ -91,17 +91,6 @@ class RunDirectory:
     def logs_dir(self) -> Path:
         return self.path / "logs"
 
-    def make_logger(self) -> Logger:
-        """
-        The runner's SB3 logger on ``logs/``: ``progress.csv`` (one row per finished iteration) and TensorBoard.
-        An existing ``progress.csv`` is continued, not truncated: it keeps its header and the rows of the
-        iterations the checkpoint counts (those of an iteration killed before its checkpoint are dropped).
-        """
-        self.logs_dir.mkdir(parents=True, exist_ok=True)
-        done = self.read_checkpoint()["iteration"] if self.has_checkpoint() else 0
-        progress = _ContinuedCSV(str(self.logs_dir / "progress.csv"), keep_rows=done)
-        return Logger(str(self.logs_dir), [progress, TensorBoardOutputFormat(str(self.logs_dir))])
-
     @property
     def tensorboard_dir(self) -> Path:
         return self.path / "tensorboard"
@@ -210,6 +199,18 @@ class RunDirectory:
         with open(self.path / self.EVALUATION_CSV, newline="") as handle:
             return list(csv.DictReader(handle))
 
+    # --- logs -----------------------------------------------------------------------------------------------
+    def make_logger(self) -> Logger:
+        """
+        The runner's SB3 logger on ``logs/``: ``progress.csv`` (one row per finished iteration) and TensorBoard.
+        An existing ``progress.csv`` is continued, not truncated: it keeps its header and the rows of the
+        iterations the checkpoint counts (those of an iteration killed before its checkpoint are dropped).
+        """
+        self.logs_dir.mkdir(parents=True, exist_ok=True)
+        done = self.read_checkpoint()["iteration"] if self.has_checkpoint() else 0
+        progress = _ContinuedCSV(str(self.logs_dir / "progress.csv"), keep_rows=done)
+        return Logger(str(self.logs_dir), [progress, TensorBoardOutputFormat(str(self.logs_dir))])
+
 
 class _ContinuedCSV(CSVOutputFormat):
     """SB3's CSV output, continuing an existing file from its header and its first ``keep_rows`` rows."""
@@ -220,7 +221,8 @@ class _ContinuedCSV(CSVOutputFormat):
         kept = lines[: 1 + keep_rows]
         if kept != lines:
             atomic_write_bytes(path, "".join(kept).encode())
-        self.file = open(filename, "r+" if path.exists() else "w+")  # noqa: SIM115 (SB3 closes it)
+        # Not SB3's __init__, which opens the file with "w+" and so truncates it; SB3 closes the file.
+        self.file = open(filename, "r+" if path.exists() else "w+")
         self.file.seek(0, io.SEEK_END)
         self.keys: list[str] = next(csv.reader(kept[:1]), [])
         self.separator = ","

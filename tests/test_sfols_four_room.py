@@ -8,10 +8,9 @@ learner from above), and GPI's curve does not fall as Π grows.
 from __future__ import annotations
 
 import gymnasium as gym
-import mo_gymnasium
 import numpy as np
-from gymnasium import spaces
 from sfgpi_envs.four_room_optimum import FourRoomOptimum
+from sfgpi_envs.mo_four_room import make_four_room
 
 from sb3_sfgpi import SFDQN, GPIPolicy
 from sb3_sfgpi.ols import OLS
@@ -20,22 +19,6 @@ from sb3_sfgpi.ols import OLS
 MAZE = ["3..X.1G", "...X...", "2.....2", "...X...", "_..X..3"]
 GAMMA, ITERATIONS, STEPS = 0.95, 6, 10_000
 TEST_WEIGHTS = np.random.default_rng(0).dirichlet(np.ones(3), size=8)
-
-
-class Cells(gym.ObservationWrapper):
-    """The true observation space of the maze: cell and one collected-flag per object."""
-
-    def __init__(self, env: gym.Env):
-        super().__init__(env)
-        height, width = env.unwrapped.maze.shape
-        self.observation_space = spaces.MultiDiscrete([height, width] + [2] * (env.observation_space.shape[0] - 2))
-
-    def observation(self, observation):
-        return np.asarray(observation, dtype=np.int64)
-
-
-def make_env() -> gym.Env:
-    return Cells(mo_gymnasium.make("four-room-v0", maze=np.array([list(row) for row in MAZE])))
 
 
 def discounted_return(act, env: gym.Env) -> np.ndarray:
@@ -49,14 +32,14 @@ def discounted_return(act, env: gym.Env) -> np.ndarray:
 
 def learner(w: np.ndarray, seed: int) -> SFDQN:
     return SFDQN(
-        "TabularPolicy", make_env(), weights=w, learning_rate=0.1, gamma=GAMMA, learning_starts=100, batch_size=32,
-        train_freq=4, exploration_fraction=0.5, exploration_final_eps=0.05, planning_sweeps=60,
+        "TabularPolicy", make_four_room(MAZE), weights=w, learning_rate=0.1, gamma=GAMMA, learning_starts=100,
+        batch_size=32, train_freq=4, exploration_fraction=0.5, exploration_final_eps=0.05, planning_sweeps=60,
         planning_interval=1_000, optimistic_init=1.25, seed=seed,
     )  # fmt: skip
 
 
 def test_sfols_gpi_reaches_the_exact_optimum_and_its_curve_does_not_fall():
-    env, ols, policy_set, curve = make_env(), OLS(3), GPIPolicy(), []
+    env, ols, policy_set, curve = make_four_room(MAZE), OLS(3), GPIPolicy(), []
     for iteration in range(ITERATIONS):
         w = ols.next_weight()
         if w is None:

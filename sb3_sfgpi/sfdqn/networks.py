@@ -195,20 +195,24 @@ class TabularSFNetwork(BasePolicy):
         self.table = nn.Embedding(n_states, self.n_actions * reward_dim)
         nn.init.zeros_(self.table.weight)
 
-    def rows(self, obs: np.ndarray) -> np.ndarray:
+    def rows(self, obs: np.ndarray, check: bool = True) -> np.ndarray:
         """
         Numpy twin of :meth:`state_index`: row indices of raw observations, shape ``(batch,)``.
 
-        :raises ValueError: an observation outside the observation space (it would index another state's row)
+        :param obs: raw observations, shape ``(batch,)`` or ``(batch, n_components)``
+        :param check: refuse observations outside the observation space (they would index another state's row);
+            ``False`` for transitions read back from a replay buffer, which recorded observations of the space
+        :raises ValueError: an observation outside the observation space
         """
         raw = np.asarray(obs)
-        components = raw.astype(np.int64).reshape(len(raw), -1) - self._low
-        outside = (components < 0) | (components >= self._n_values)
-        if raw.dtype.kind == "f":
-            outside |= (raw != np.floor(raw)).reshape(components.shape)
-        if outside.any():
-            first = raw[int(np.argmax(outside.any(axis=1)))].tolist()
-            raise ValueError(f"observation {first} is outside the observation space {self.observation_space}")
+        components = raw.astype(np.int64).reshape(len(raw), self._low.size) - self._low
+        if check:
+            outside = (components < 0) | (components >= self._n_values)
+            if raw.dtype.kind == "f":
+                outside |= (raw != np.floor(raw)).reshape(components.shape)
+            if outside.any():
+                first = raw[int(np.argmax(outside.any(axis=1)))].tolist()
+                raise ValueError(f"observation {first} is outside the observation space {self.observation_space}")
         return components @ self._strides
 
     def state_index(self, obs: th.Tensor) -> th.Tensor:

@@ -324,16 +324,15 @@ class TabularPolicy(SFDQNPolicy):
         net = self.sf_net
         entries = self._entries(net)
         obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
-        tried, sweeps = np.zeros(len(entries), dtype=bool), 0
-        if len(actions):
-            model = EmpiricalModel.from_transitions(
-                net.rows(obs), actions, net.rows(next_obs), dones, rewards, net.table.num_embeddings, net.n_actions
-            )
-            tried[model.entries] = True
+        rows, next_rows = net.rows(obs, check=False), net.rows(next_obs, check=False)
+        model = EmpiricalModel.from_transitions(
+            rows, actions, next_rows, dones, rewards, net.table.num_embeddings, net.n_actions
+        )
         if untried_value is not None:
-            entries[~tried] = untried_value
-        if len(actions):
-            sweeps = model.sweep(entries, self.weights.numpy(), gamma, max_sweeps)
+            untried = np.ones(len(entries), dtype=bool)
+            untried[model.entries] = False
+            entries[untried] = untried_value
+        sweeps = model.sweep(entries, self.weights.numpy(), gamma, max_sweeps) if len(actions) else 0
         if self.sf_net_target is not net:
             self.sf_net_target.load_state_dict(net.state_dict())
         return sweeps
@@ -363,10 +362,12 @@ class TabularPolicy(SFDQNPolicy):
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
         obs, actions, next_obs, dones, rewards = replay_buffer.sample_arrays(batch_size)
         n_actions = net.n_actions
-        next_flat = greedy_entries(entries, net.rows(next_obs) * n_actions, n_actions, self.weights.numpy())
+        next_flat = greedy_entries(
+            entries, net.rows(next_obs, check=False) * n_actions, n_actions, self.weights.numpy()
+        )
         next_entries = self._entries(target_net) if target_net is not net else entries
         target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_entries[next_flat]
-        flat = net.rows(obs) * n_actions + actions.astype(np.int64)
+        flat = net.rows(obs, check=False) * n_actions + actions.astype(np.int64)
         td_error = target_psi - entries[flat]
         np.add.at(entries, flat, self.optimizer.param_groups[0]["lr"] * td_error)
         return float(0.5 * np.square(td_error).sum())
