@@ -20,6 +20,11 @@ def four_room() -> dict[str, Any]:
     wait for the other learner's collections, and under GPI, next to a partner that behaves differently, it waits
     for ever. Measured over 10 iterations of 3 seeds of both algorithms (README "Four-Room"): GPI's mean w·return
     0.20-0.54 with ``"xy"``, 0.65-1.08 with ``"full"``, 0.84-1.32 with ``"own"``.
+
+    The learners plan on their replay buffer's model and explore optimistically (``planning_sweeps``,
+    ``optimistic_init``), and a new policy joins Π only if GPI does no worse with it on 15 validation weights
+    (``validation_weights``): without validation GPI fell from 1.289 at iteration 4 to 1.159 at 10 (3 seeds), with it
+    the curve ends at its best (README "Four-Room").
     """
     from sfgpi_envs.four_room import FourRoomParallelEnv
 
@@ -37,10 +42,13 @@ def four_room() -> dict[str, Any]:
             "exploration_initial_eps": 1.0,
             "exploration_fraction": 0.5,
             "exploration_final_eps": 0.05,
+            "planning_sweeps": 60,  # Dyna: sweeps of the SF backup on the replay buffer's model, every 5,000 steps
+            "optimistic_init": 1.25,  # optimism in the face of the untried pairs, settled at the end of learn()
         },
         "steps_per_iteration": 50_000,
         "iterations": 10,
         "n_test_weights": 12,
+        "validation_weights": 12,  # a new policy joins Π only if GPI does no worse with it on validation weights
         "value_episodes": 1,
         "eval_episodes": 1,
     }

@@ -1,6 +1,6 @@
 """sb3-sfgpi: successor features, OLS and GPI for Stable-Baselines3."""
 
-from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, ValueEstimation
+from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, PolicyValidation, ValueEstimation
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.multiagent import MultiAgentRunner
@@ -20,6 +20,7 @@ __all__ = [
     "MultiAgentRunner",
     "OLSCallback",
     "OLSSchedule",
+    "PolicyValidation",
     "RandomSchedule",
     "RunDirectory",
     "ValueEstimation",

@@ -25,7 +25,7 @@ from tqdm.auto import tqdm
 from sb3_sfgpi.common.metrics import hypervolume
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, summarize_test_episodes
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
@@ -95,6 +95,35 @@ class ValueEstimation:
             raise ValueError(f"episodes must be at least 1, got {self.episodes}")
 
 
+@dataclass(frozen=True)
+class PolicyValidation:
+    """
+    Which new policies join Π. With ``n_weights > 0`` a new policy joins only if GPI over Π does at least as well
+    with it as without it on validation weights: the simplex extrema and ``n_weights`` Dirichlet(1) weights drawn
+    from the run's seed (not the test weights), scored by the mean over weights and agents of the discounted
+    w·return, every agent acting by GPI. A policy left out is one whose SFs promise more than it returns where GPI
+    would follow it (in a multi-agent env, typically objects its partner takes first). Its value still goes to the
+    schedule, so the weights trained, and the learners, are the same with and without validation.
+
+    :param n_weights: Dirichlet(1) validation weights besides the extrema; 0: every new policy joins Π (the paper)
+    :param episodes: episodes per validation weight
+    """
+
+    n_weights: int = 0
+    episodes: int = 1
+
+    def __post_init__(self) -> None:
+        if isinstance(self.n_weights, bool) or not isinstance(self.n_weights, int) or self.n_weights < 0:
+            raise ValueError(f"n_weights must be a non-negative integer, got {self.n_weights!r}")
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be at least 1, got {self.episodes}")
+
+    def weights(self, reward_dim: int, seed: int) -> np.ndarray:
+        """The validation weights of a run with ``seed``, shape ``(reward_dim + n_weights, reward_dim)``."""
+        drawn = random_weights(reward_dim, self.n_weights, rng=derive_seed(seed, "validation-weights"))
+        return np.vstack([np.eye(reward_dim), drawn])
+
+
 class OLSCallback(BaseCallback):
     """
     Algorithm 1 over a :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`: the weights of every iteration, Π, and the
@@ -104,6 +133,7 @@ class OLSCallback(BaseCallback):
     :param steps_per_iteration: joint env steps every agent trains for its weights in one iteration
     :param evaluation: how GPI is evaluated after every iteration
     :param values: how the values of new policies are estimated
+    :param validation: which new policies join Π (default: all of them)
     :param run_dir: where Π, evaluations and checkpoints go (None: nowhere, or a temporary directory when the
         evaluation runs in worker processes)
     :param resume: continue from the checkpoint in ``run_dir`` if there is one
@@ -121,6 +151,7 @@ class OLSCallback(BaseCallback):
         steps_per_iteration: int,
         evaluation: EvaluationConfig,
         values: ValueEstimation = ValueEstimation(),
+        validation: PolicyValidation = PolicyValidation(),
         run_dir: RunDirectory | str | Path | None = None,
         resume: bool = False,
         max_iterations: int | None = None,
@@ -139,6 +170,9 @@ class OLSCallback(BaseCallback):
         self.steps_per_iteration = steps_per_iteration
         self.evaluation = evaluation
         self.values = values
+        self.validation = validation
+        if validation.n_weights and evaluation.policies == "own":
+            raise ValueError("policy validation scores GPI over the shared Π: not for policies='own' evaluations")
         self.run_dir = run_dir if run_dir is None or isinstance(run_dir, RunDirectory) else RunDirectory(run_dir)
         self.resume = resume
         self.max_iterations = max_iterations
@@ -154,6 +188,7 @@ class OLSCallback(BaseCallback):
         self._policy_dir: RunDirectory | None = self.run_dir
         self._started = False
         self._pending: AgentWeights | None = None  # the next weights, when a call of learn() stopped at its cap
+        self._validation_score: float | None = None  # GPI's score over Π on the validation weights (cache)
 
     @property
     def reached_max_iterations(self) -> bool:
@@ -205,8 +240,8 @@ class OLSCallback(BaseCallback):
             self._iteration_bar.close()
         self.model.end_iteration()
         for agent, value in self._estimate_values().items():
-            if self.schedule.add(value, self.weights[agent]):  # a new value: the policy joins Π
-                self.policy_set.add(self.model.learners[agent], value=value, agent=agent, iteration=self.iteration)
+            if self.schedule.add(value, self.weights[agent]):  # a new value: the policy is a candidate for Π
+                self._admit(agent, value)
         self._save_policy_set()  # before the evaluation: its worker processes load Π
         self.history.append(self._evaluate_gpi())
         self.iteration += 1
@@ -251,6 +286,32 @@ class OLSCallback(BaseCallback):
             returns = runner.rollout(runner.learner_policy(agent), episodes, seed)
             values[agent] = np.mean([returns.mean_discounted(a) for a in returns.discounted], axis=0)
         return values
+
+    def _admit(self, agent: str, value: np.ndarray) -> None:
+        """Add ``agent``'s new policy to Π, unless GPI does worse with it on the validation weights."""
+        validate = self.validation.n_weights > 0 and len(self.policy_set) > 0
+        before = self._gpi_validation_score() if validate else 0.0
+        self.policy_set.add(self.model.learners[agent], value=value, agent=agent, iteration=self.iteration)
+        self._validation_score = None  # Π changed
+        if validate and (after := self._gpi_validation_score()) < before:
+            self.policy_set.pop()
+            self._validation_score = before
+            if self.verbose:
+                print(f"{agent}'s policy left out of Π: GPI on the validation weights {after:.4f} with it, "
+                      f"{before:.4f} without")  # fmt: skip
+
+    def _gpi_validation_score(self) -> float:
+        """GPI over Π on the validation weights: mean over weights and agents of the discounted w·return."""
+        if self._validation_score is None:
+            runner = self.model
+            weights = self.validation.weights(runner.reward_dim, runner.seed)
+            returns = [
+                runner.rollout(self.policy_set.joint_policy(w), self.validation.episodes,
+                               derive_seed(runner.seed, "validation", i))
+                for i, w in enumerate(weights)
+            ]  # fmt: skip
+            self._validation_score = summarize_test_episodes(weights, returns)[0]["mean_return"]
+        return self._validation_score
 
     # --- GPI evaluation ---------------------------------------------------------------------------------------------
     def _evaluate_gpi(self) -> dict[str, Any]:

@@ -201,6 +201,19 @@ class GPIPolicy:
         self._weights_cache = None
         return len(self.networks) - 1
 
+    def pop(self) -> PolicyInfo:
+        """
+        Remove the policy added last.
+
+        :return: its info
+        :raises ValueError: the set is empty
+        """
+        self._first()
+        self.networks.pop()
+        self._stacked = None
+        self._weights_cache = None
+        return self.infos.pop()
+
     # --- selections ---------------------------------------------------------------------------------------
     def subset(self, indices: Iterable[int]) -> GPIPolicy:
         """A new set holding copies of the policies at ``indices``, in that order, with their infos."""
@@ -422,7 +435,12 @@ class GPIPolicy:
             if not isinstance(action_space, spaces.Discrete):
                 raise ValueError(f"the action space must be Discrete, got {action_space}")
             policy_set = cls(device="cpu")
+            files = [entry["file"] for entry in manifest["policies"]]
+            if len(set(files)) != len(files):
+                raise ValueError("the manifest lists a policy file more than once")
             for entry in manifest["policies"]:
+                if entry.get("value") is not None and not np.isfinite(np.asarray(entry["value"], dtype=float)).all():
+                    raise ValueError(f"the value of {entry['file']!r} is not finite")
                 net = build_network(manifest["network"], observation_space, action_space, reward_dim)
                 net.load_state_dict(network_state(net, read_state_dict(directory, entry["file"])))
                 policy_set.add(

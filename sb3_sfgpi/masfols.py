@@ -17,7 +17,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.type_aliases import MaybeCallback
 
-from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, ValueEstimation
+from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, PolicyValidation, ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
@@ -37,7 +37,10 @@ SETTINGS = (
     "eval_episodes",
     "gpi_set",
     "transfer",
+    "validation_weights",
 )
+#: Settings that runs written before they existed lack, with the value that reproduces those runs.
+SETTING_DEFAULTS = {"validation_weights": 0}
 
 
 class MASFOLS:
@@ -60,11 +63,15 @@ class MASFOLS:
     :param eval_episodes: episodes per test weight of the GPI evaluation
     :param gpi_set: GPI over ``"all"`` of Π or over its CCS (``"ccs"``)
     :param transfer: start each new learner from the policy of Π best for its weights
+    :param validation_weights: a new policy joins Π only if GPI does at least as well with it on the simplex
+        extrema and this many Dirichlet(1) validation weights (see :class:`~sb3_sfgpi.callbacks.PolicyValidation`;
+        0: every new policy joins, as in the paper; not for fixed weights)
     :param eval_workers: evaluate GPI in this many worker processes (0: in this process)
     :param eval_env_fn: picklable env constructor of the workers (required when ``eval_workers > 0``)
     :param eval_env_kwargs: its keyword arguments
     :param run_info: more plain data to store in ``run.json`` (e.g. the CLI's domain and env arguments)
     :param verbose: 1 prints a line per iteration
+    :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them)
     """
 
     def __init__(
@@ -82,6 +89,7 @@ class MASFOLS:
         eval_episodes: int = 1,
         gpi_set: str = "all",
         transfer: bool = False,
+        validation_weights: int = 0,
         eval_workers: int = 0,
         eval_env_fn: Callable[..., ParallelEnv] | None = None,
         eval_env_kwargs: Mapping[str, Any] | None = None,
@@ -96,6 +104,7 @@ class MASFOLS:
             gamma=learner_kwargs.get("gamma", 0.99),
             tensorboard_log=None if run_dir is None else str(RunDirectory(run_dir).tensorboard_dir),
         )
+        self.runner.check_learner()
         fixed = not isinstance(weights, str)
         test_weights = self._test_weights(test_weights, weights if fixed else None)
         self.run_dir = None if run_dir is None else RunDirectory(run_dir)
@@ -111,6 +120,7 @@ class MASFOLS:
             "eval_episodes": eval_episodes,
             "gpi_set": gpi_set,
             "transfer": transfer,
+            "validation_weights": validation_weights,
         }
         evaluation = EvaluationConfig(
             test_weights, eval_episodes, "own" if fixed else "shared", gpi_set, eval_workers,
@@ -121,6 +131,7 @@ class MASFOLS:
             steps_per_iteration,
             evaluation,
             ValueEstimation(value_mode, value_episodes),
+            PolicyValidation(validation_weights),
             run_dir=self.run_dir,
             transfer=transfer,
             verbose=verbose,
@@ -150,7 +161,7 @@ class MASFOLS:
             ``verbose``
         :raises ValueError: not a run directory, or a stored setting missing
         """
-        config = RunDirectory(run_dir).read_config()
+        config = {**SETTING_DEFAULTS, **RunDirectory(run_dir).read_config()}
         missing = [key for key in SETTINGS if key not in config]
         if missing:
             raise ValueError(f"{run_dir}/run.json lacks the settings {missing}: not a run of MASFOLS")

@@ -170,6 +170,19 @@ class MultiAgentRunner:
         """Use ``logger`` for the runner-level records (e.g. OLS progress and evaluations)."""
         self.logger = logger
 
+    def check_learner(self) -> None:
+        """
+        Build one learner (the first agent's, for uniform weights) and drop it, so that bad learner options are
+        refused before any training.
+
+        :raises ValueError: an option the learners do not take, or one out of range
+        """
+        agent = self.agents[0]
+        try:
+            self.learner_factory(agent, self.views[agent], np.full(self.reward_dim, 1 / self.reward_dim), 0)
+        except TypeError as error:  # an unknown keyword argument
+            raise ValueError(f"bad learner options: {error}") from error
+
     def start_iteration(
         self,
         weights: dict[str, np.ndarray],

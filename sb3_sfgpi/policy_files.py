@@ -85,6 +85,9 @@ def read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
         raise CorruptPolicySetError(f"policy file {path} is unreadable or unsafe: {error}") from error
     if not isinstance(state, dict) or not all(isinstance(v, th.Tensor) for v in state.values()):
         raise CorruptPolicySetError(f"policy file {path} does not hold a state dict of tensors")
+    for key, value in state.items():
+        if value.is_floating_point() and not bool(th.isfinite(value).all()):
+            raise CorruptPolicySetError(f"policy file {path} holds non-finite values (NaN or inf) in {key!r}")
     return state
 
 
@@ -111,6 +114,8 @@ def network_state(net: nn.Module, state: dict[str, th.Tensor]) -> dict[str, th.T
         raise ValueError(f"stored table rows {tuple(rows.shape)} and values {tuple(values.shape)} do not match")
     if len(rows) and (rows.min() < 0 or rows.max() >= expected[0]):
         raise ValueError(f"stored table rows outside 0..{expected[0] - 1}")
+    if len(th.unique(rows)) != len(rows):
+        raise ValueError("stored table rows repeat: each row may be stored once")
     table = th.zeros(expected, dtype=values.dtype)
     table[rows] = values
     return {**state, "table.weight": table}

@@ -56,6 +56,7 @@ def test_evaluate_prints_per_agent_returns(run_dir, capsys):
         (["evaluate", "RUN", "--w", "1", "-1", "0"], "non-negative"),
         (["evaluate", "RUN", "--w", "0", "0", "0"], "all zero"),
         (["evaluate", "NOT_A_RUN", "--w", "1", "0", "0"], "not a run directory"),
+        (["evaluate", "RUN", "--w", "1", "0", "0", "--seed", "-1"], "--seed must be 0 or more"),
         (["train", "no-such-domain"], "unknown domain"),
         (["plot", "NOT_A_RUN", "-o", "x.png"], "not a run directory"),
     ],

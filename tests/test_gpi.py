@@ -333,6 +333,34 @@ def sparse_table_without_rows(directory: Path) -> None:
     th.save(state, directory / "policy_001.pt")
 
 
+def sparse_rows_repeated(directory: Path) -> None:
+    sparse_table(directory, **{"table.rows": th.tensor([1, 1]), "table.values": th.ones(2, 6)})
+
+
+def non_finite_values(directory: Path, value: float) -> None:
+    sparse_table(directory, **{"table.rows": th.tensor([0, 1]), "table.values": th.full((2, 6), value)})
+
+
+def nan_values(directory: Path) -> None:
+    non_finite_values(directory, float("nan"))
+
+
+def infinite_values(directory: Path) -> None:
+    non_finite_values(directory, float("inf"))
+
+
+def non_finite_value_vector(directory: Path) -> None:
+    manifest = json.loads((directory / MANIFEST).read_text())
+    manifest["policies"][1]["value"] = [float("nan"), 0.0]
+    (directory / MANIFEST).write_text(json.dumps(manifest))
+
+
+def file_listed_twice(directory: Path) -> None:
+    manifest = json.loads((directory / MANIFEST).read_text())
+    manifest["policies"] = [manifest["policies"][0]] * 40
+    (directory / MANIFEST).write_text(json.dumps(manifest))
+
+
 def not_tensors(directory: Path) -> None:
     th.save({"table.weight": [1.0, 2.0]}, directory / "policy_001.pt")
 
@@ -368,6 +396,11 @@ def missing_key(directory: Path) -> None:
         (truncate_policy_file, "policy_001.pt is unreadable"),
         (wrong_shapes, "size mismatch"),
         (not_tensors, "state dict of tensors"),
+        (sparse_rows_repeated, "stored table rows repeat"),
+        (nan_values, r"non-finite values \(NaN or inf\) in 'table.values'"),
+        (infinite_values, r"non-finite values \(NaN or inf\) in 'table.values'"),
+        (non_finite_value_vector, "the value of 'policy_001.pt' is not finite"),
+        (file_listed_twice, "lists a policy file more than once"),
         (sparse_rows_outside_the_table, "rows outside 0..4"),
         (sparse_table_of_another_shape, r"stored table has shape \(6, 6\), the network's is \(5, 6\)"),
         (sparse_values_not_matching_rows, r"rows \(2,\) and values \(3, 6\) do not match"),

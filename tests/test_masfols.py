@@ -92,9 +92,9 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     assert (tmp_path / "logs" / "progress.csv").is_file()
 
 
-@pytest.mark.parametrize("weights", ["ols", "random"])
-def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, weights):
-    kwargs = dict(steps=300, weights=weights, seed=3)
+@pytest.mark.parametrize(("weights", "validation_weights"), [("ols", 0), ("random", 0), ("random", 3)])
+def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, weights, validation_weights):
+    kwargs = dict(steps=300, weights=weights, seed=3, validation_weights=validation_weights)
     whole = make(**kwargs, run_dir=tmp_path / "whole").learn(max_iterations=3)
 
     make(**kwargs, run_dir=tmp_path / "cut").learn(max_iterations=1)
@@ -108,6 +108,16 @@ def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, weights):
     assert_same_policy_sets(continued.policy_set, whole.policy_set)
     assert_same_policy_sets(GPIPolicy.load(tmp_path / "cut" / "policy_set"), whole.policy_set)
     assert json.loads((tmp_path / "cut" / "checkpoint.json").read_text())["iteration"] == len(whole.history)
+
+
+def test_a_run_written_before_validation_existed_continues_without_it(tmp_path):
+    make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=1)
+    config = json.loads((tmp_path / "run.json").read_text())
+    del config["validation_weights"]
+    (tmp_path / "run.json").write_text(json.dumps(config))
+    continued = MASFOLS.load(tmp_path, ParallelChainEnv(2))
+    assert continued.settings["validation_weights"] == 0 and continued.callback.validation.n_weights == 0
+    assert len(continued.learn(max_iterations=2).history) == 2
 
 
 def test_fixed_weights_evaluate_each_agent_on_its_own_policies_and_keep_every_policy():
@@ -182,4 +192,3 @@ def test_a_killed_iterations_log_row_is_replaced_on_resume(tmp_path):
     MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=3)
     rows = progress.read_text().splitlines()
     assert progress.read_text().startswith(finished) and len(rows) == 4
-

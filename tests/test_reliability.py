@@ -32,6 +32,9 @@ def test_huge_weights_are_normalised_without_overflow():
         ({"gamma": float("nan")}, "gamma must be a number in"),
         ({"batch_size": 0}, "batch_size must be a positive integer"),
         ({"batch_size": 2.5}, "batch_size must be a positive integer"),
+        ({"learning_rate": "abc"}, "learning_rate must be a number >= 0 or a schedule"),
+        ({"learning_rate": -0.1}, "learning_rate must be a number >= 0 or a schedule"),
+        ({"learning_rate": float("nan")}, "learning_rate must be a number >= 0 or a schedule"),
     ],
 )
 def test_out_of_range_learner_options_are_refused(overrides, message):
@@ -46,6 +49,12 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
         (["--steps-per-iteration", "0"], "--steps-per-iteration must be positive, got 0"),
         (["--learner", "gamma=2"], "gamma must be a number in [0, 1], got 2"),
         (["--learner", "batch_size=0"], "batch_size must be a positive integer, got 0"),
+        (["--validation-weights", "-1"], "--validation-weights must be 0 or more, got -1"),
+        (["--env", "nosuchkey=1"], "--env: the four-room env refuses"),
+        (["--env", "observation_mode=bogus"], "unknown observation_mode 'bogus'"),
+        (["--learner", "nosuchkwarg=1"], "unexpected keyword argument 'nosuchkwarg'"),
+        (["--learner", "learning_rate=abc"], "learning_rate must be a number >= 0 or a schedule, got 'abc'"),
+        (["--algo", "fixed", "--w", "1", "0", "0", "--validation-weights", "3"], "not for --algo fixed"),
     ],
 )
 def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, argv, message):
@@ -54,6 +63,16 @@ def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, argv, mess
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_train_refuses_a_run_directory_it_cannot_create(tmp_path):
+    (tmp_path / "file").write_text("")
+    out = tmp_path / "file" / "run"
+    result = subprocess.run(
+        [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(out)], capture_output=True, text=True
+    )
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert f"--out {out}: cannot create the run directory (Not a directory)" in result.stderr
 
 
 def test_numpy_scalars_are_accepted_as_options():
@@ -70,6 +89,7 @@ def test_numpy_scalars_are_accepted_as_options():
         ),
         (["--n-test-weights", "5"], "--n-test-weights 5 would change the run's n_test_weights (2)"),
         (["--transfer"], "--transfer True would change the run's transfer (False)"),
+        (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (12)"),
     ],
 )
 def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):

@@ -65,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
     preset = load_domain(config["domain"])
     if args.episodes < 1:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be 0 or more (the environment's reset seed), got {args.seed}")
     workers = preset.eval_workers if args.workers is None else args.workers
     if workers < 0:
         raise UsageError(f"--workers must be 0 or more, got {workers}")

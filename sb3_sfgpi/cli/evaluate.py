@@ -38,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
     w = validate_weights(args.w, policy_set.reward_dim, "--w")
     if args.episodes < 1:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be 0 or more (the environment's reset seed), got {args.seed}")
     env = load_domain(config["domain"]).make_env(**config["env_kwargs"])
     gamma = config["learner_kwargs"].get("gamma", 0.99)
     try:

@@ -33,6 +33,8 @@ class DomainPreset:
     :param eval_episodes: episodes per test weight of the GPI evaluation
     :param value_mode: ``"joint"`` or ``"shared"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
     :param gpi_set: ``"all"`` or ``"ccs"``
+    :param validation_weights: Dirichlet(1) validation weights deciding which new policies join Π (0: all join; see
+        :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
     :param eval_workers: default number of evaluation processes
     :param objectives: the objectives' names, one per reward component
     :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions
@@ -54,6 +56,7 @@ class DomainPreset:
     eval_episodes: int
     value_mode: str = "joint"
     gpi_set: str = "all"
+    validation_weights: int = 0
     eval_workers: int = 0
     objectives: list[str] | None = None
     baselines: dict[str, dict[str, Any]] = field(default_factory=dict)

@@ -11,7 +11,7 @@ import numpy as np
 from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
 from sb3_sfgpi.cli.presets import DomainPreset, load_domain
 from sb3_sfgpi.cli.values import check_weights, key_values
-from sb3_sfgpi.masfols import MASFOLS
+from sb3_sfgpi.masfols import MASFOLS, SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
 
 ALGORITHMS = {"ma-sfols": "ols", "random": "random"}  # --algo -> MASFOLS weights (fixed: the --w weights)
@@ -53,6 +53,13 @@ def add_parser(sub: Any) -> None:
     train.add_argument("--learner", metavar="KEY=VALUE", action="append", default=[], help="override an SFDQN argument")
     train.add_argument("--n-test-weights", type=int, help="test weights of the GPI evaluation (default: the domain's)")
     train.add_argument(
+        "--validation-weights",
+        type=int,
+        metavar="N",
+        help="a new policy joins the set only if GPI does at least as well with it on the simplex extrema and N "
+        "Dirichlet(1) validation weights (0: every new policy joins; default: the domain's; not for --algo fixed)",
+    )
+    train.add_argument(
         "--torch-threads",
         type=int,
         default=1,
@@ -91,8 +98,7 @@ def run(args: argparse.Namespace) -> int:
     import torch as th
 
     th.set_num_threads(args.torch_threads)
-    env = preset.make_env(**config["env_kwargs"])
-    model = _model(args, preset, env, run_dir, config)
+    model = _model(args, preset, _env(args, preset, config), _created(run_dir), config)
     try:
         model.learn(config["iterations"], progress_bar=not args.no_progress)
     except (RuntimeError, KeyboardInterrupt) as error:
@@ -132,10 +138,22 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "learner_kwargs": learner_kwargs,
         "n_test_weights": n_test_weights,
         "weights": ALGORITHMS.get(args.algo) or check_weights(args.w, "--w"),
+        "validation_weights": _validation_weights(args, preset),
     }
     if args.algo == "fixed":
         config.update(_fixed_budget(args, iterations, steps_per_iteration))
     return config
+
+
+def _validation_weights(args: argparse.Namespace, preset: DomainPreset) -> int:
+    """The number of validation weights: the option's or the domain's; 0 for fixed weights (nothing to choose)."""
+    if args.validation_weights is None:
+        return 0 if args.algo == "fixed" else preset.validation_weights
+    if args.algo == "fixed":
+        raise UsageError("--validation-weights is not for --algo fixed: every policy of a fixed run is kept")
+    if args.validation_weights < 0:
+        raise UsageError(f"--validation-weights must be 0 or more, got {args.validation_weights}")
+    return args.validation_weights
 
 
 def _fixed_budget(args: argparse.Namespace, iterations: int, steps_per_iteration: int) -> dict[str, Any]:
@@ -165,14 +183,32 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
     for option, key in (("--env", "env_kwargs"), ("--learner", "learner_kwargs")):
         if getattr(args, option[2:]) and config[key] != saved.get(key):
             raise UsageError(f"--resume: {option} would change the run's {key} ({saved.get(key)})")
-    for option in ("--steps-per-iteration", "--n-test-weights", "--transfer"):
+    for option in ("--steps-per-iteration", "--n-test-weights", "--transfer", "--validation-weights"):
         key = option[2:].replace("-", "_")
-        if getattr(args, key) not in (None, False) and config[key] != saved.get(key):
+        given = getattr(args, key) is not None and getattr(args, key) is not False
+        if given and config[key] != saved.get(key, SETTING_DEFAULTS.get(key)):
             raise UsageError(f"--resume: {option} {config[key]} would change the run's {key} ({saved.get(key)})")
     for key in ("domain", "algorithm", "seed", "weights"):
         if saved.get(key) != config.get(key):
             raise UsageError(f"--resume: {run_dir} is a run with {key}={saved.get(key)!r}, not {config.get(key)!r}")
     return {**saved, "iterations": config["iterations"]}
+
+
+def _env(args: argparse.Namespace, preset: DomainPreset, config: dict[str, Any]) -> Any:
+    """The domain's env with the run's arguments; a one-line error where it refuses them."""
+    try:
+        return preset.make_env(**config["env_kwargs"])
+    except (TypeError, ValueError) as error:  # an unknown argument, a value out of range
+        raise UsageError(f"--env: the {args.domain} env refuses {config['env_kwargs']}: {error}") from error
+
+
+def _created(run_dir: RunDirectory) -> RunDirectory:
+    """The run directory, created if needed; a one-line error where it cannot be."""
+    try:
+        run_dir.path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UsageError(f"--out {run_dir.path}: cannot create the run directory ({error.strerror})") from error
+    return run_dir
 
 
 def _model(
@@ -183,9 +219,18 @@ def _model(
     unstored = dict(
         eval_workers=workers, eval_env_fn=preset.make_env if workers else None, eval_env_kwargs=config["env_kwargs"]
     )
-    if args.resume:
-        run_dir.write_config(config)
-        return MASFOLS.load(run_dir.path, env, verbose=1, **unstored)
+    try:
+        if args.resume:
+            run_dir.write_config(config)
+            return MASFOLS.load(run_dir.path, env, verbose=1, **unstored)
+        return _new_model(preset, env, run_dir, config, unstored)
+    except ValueError as error:  # bad learner options (MASFOLS builds a learner first)
+        raise UsageError(str(error)) from error
+
+
+def _new_model(
+    preset: DomainPreset, env: Any, run_dir: RunDirectory, config: dict[str, Any], unstored: dict[str, Any]
+) -> MASFOLS:
     return MASFOLS(
         env,
         policy=config["policy"],
@@ -200,6 +245,7 @@ def _model(
         eval_episodes=preset.eval_episodes,
         gpi_set=preset.gpi_set,
         transfer=config["transfer"],
+        validation_weights=config["validation_weights"],
         run_info=config,
         verbose=1,
         **unstored,

@@ -30,6 +30,7 @@ SETTLE_SWEEPS = 10_000
 
 
 def _check_options(
+    learning_rate: float | Schedule,
     gamma: float,
     batch_size: int,
     n_steps: int,
@@ -40,6 +41,9 @@ def _check_options(
     policy_class: type,
 ) -> None:
     """Refuse out-of-range options, SB3 options SFDQN does not support and bad planning or optimism options."""
+    rate_ok = isinstance(learning_rate, numbers.Real) and math.isfinite(learning_rate) and learning_rate >= 0
+    if not (rate_ok or callable(learning_rate)) or isinstance(learning_rate, bool):
+        raise ValueError(f"learning_rate must be a number >= 0 or a schedule, got {learning_rate!r}")
     if not isinstance(gamma, numbers.Real) or not 0.0 <= gamma <= 1.0:
         raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
     if isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral) or batch_size < 1:
@@ -159,6 +163,7 @@ class SFDQN(OffPolicyAlgorithm):
     ) -> None:
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
         _check_options(
+            learning_rate,
             gamma,
             batch_size,
             n_steps,
