@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -100,6 +102,23 @@ def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, messag
     assert main([*resume, *argv]) == 2
     assert message in capsys.readouterr().err
     assert main(resume) == 0  # the options not given keep the run's
+
+
+def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(out), "--no-progress"]
+    process = subprocess.Popen(
+        [*command, "--iterations", "1000", "--steps-per-iteration", "200"], stderr=subprocess.PIPE, text=True
+    )
+    deadline = time.monotonic() + 120
+    while not (out / "checkpoint.json").exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 1 and "Traceback" not in stderr
+    assert len(stderr.strip().splitlines()) == 1
+    assert "(interrupted by SIGTERM)" in stderr and "is intact: continue with" in stderr
+    assert f"--out {out} --resume --iterations 1000`" in stderr
 
 
 def test_the_stop_message_repeats_the_iteration_cap(tmp_path):

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -100,13 +103,32 @@ def run(args: argparse.Namespace) -> int:
     th.set_num_threads(args.torch_threads)
     model = _model(args, preset, _env(args, preset, config), _created(run_dir), config)
     try:
-        model.learn(config["iterations"], progress_bar=not args.no_progress)
+        with _sigterm_as_interrupt():
+            model.learn(config["iterations"], progress_bar=not args.no_progress)
     except (RuntimeError, KeyboardInterrupt) as error:
         raise TrainingStopped(_stopped_message(args, run_dir, model, error)) from error
     finally:
         model.close()
     _print_result(run_dir, model)
     return 0
+
+
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``kill``, a batch scheduler) stops training as Ctrl-C does: the same message, the same resume."""
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt("SIGTERM")
+
+    try:
+        previous = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread: signals stay as they are
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any]:
@@ -219,18 +241,9 @@ def _model(
     unstored = dict(
         eval_workers=workers, eval_env_fn=preset.make_env if workers else None, eval_env_kwargs=config["env_kwargs"]
     )
-    try:
-        if args.resume:
-            run_dir.write_config(config)
-            return MASFOLS.load(run_dir.path, env, verbose=1, **unstored)
-        return _new_model(preset, env, run_dir, config, unstored)
-    except ValueError as error:  # bad learner options (MASFOLS builds a learner first)
-        raise UsageError(str(error)) from error
-
-
-def _new_model(
-    preset: DomainPreset, env: Any, run_dir: RunDirectory, config: dict[str, Any], unstored: dict[str, Any]
-) -> MASFOLS:
+    if args.resume:
+        run_dir.write_config(config)
+        return MASFOLS.load(run_dir.path, env, verbose=1, **unstored)
     return MASFOLS(
         env,
         policy=config["policy"],
@@ -255,7 +268,10 @@ def _new_model(
 def _stopped_message(args: argparse.Namespace, run_dir: RunDirectory, model: MASFOLS, error: BaseException) -> str:
     """One line: where training stopped, that the last checkpoint is intact, and the command that continues it."""
     done = run_dir.read_checkpoint()["iteration"] if run_dir.has_checkpoint() else 0
-    reason = "interrupted" if isinstance(error, KeyboardInterrupt) else f"{type(error).__name__}: {error}"
+    if isinstance(error, KeyboardInterrupt):
+        reason = f"interrupted by {error}" if str(error) else "interrupted"
+    else:
+        reason = f"{type(error).__name__}: {error}"
     reason = " ".join(reason.split())  # one line
     weights = model.settings["weights"]
     return (
