@@ -34,6 +34,7 @@ from stable_baselines3.common.utils import is_vectorized_observation
 from torch import nn
 
 from sb3_sfgpi.common.device import resolve_device
+from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.rollouts import JointPolicy
 from sb3_sfgpi.common.serialization import (
     atomic_write_bytes,
@@ -303,7 +304,7 @@ class GPIPolicy:
         if isinstance(observation, dict) or is_image_space(space):
             obs_tensor, vectorized = self._obs_to_tensor(observation)
             return obs_tensor.cpu().numpy(), vectorized
-        array = np.asarray(observation)
+        array = numeric_array(observation)
         vectorized = is_vectorized_observation(array, space)
         return array.reshape((-1, *space.shape)), vectorized  # type: ignore[misc]
 

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch as th
 from conftest import FIG1_TABULAR_KWARGS
 from momdp import Fig1MOMDP
 
@@ -155,3 +156,16 @@ def test_tabular_predict_refuses_observations_outside_the_space(observation):
         with pytest.raises(ValueError, match=r"observation \[.*\] is outside the observation space MultiDiscrete"):
             predict(np.array(observation))
     assert model.predict(np.array([12, 0] + [0] * 12), deterministic=True)[0] in range(4)
+
+
+def test_predict_takes_a_tensor_that_requires_grad_and_refuses_strings():
+    model = four_room_tabular_model()
+    policy_set = GPIPolicy()
+    policy_set.add(model)
+    observation = [12, 0] + [0] * 12
+    tensor = th.tensor(observation, dtype=th.float32, requires_grad=True)
+    for predict in (lambda obs: model.predict(obs, deterministic=True), lambda obs: policy_set.predict(obs, [1, 0, 0])):
+        assert predict(tensor)[0] == predict(np.array(observation))[0]
+        for bad, dtype in ((np.array(["12"] + ["0"] * 13), "<U2"), (np.array(observation, dtype=object), "object")):
+            with pytest.raises(ValueError, match=f"observations must be numbers .*, got an array of dtype {dtype}"):
+                predict(bad)

@@ -19,6 +19,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.device import resolve_device
+from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.vec_env import vec_env_reward_dim, wrap_mo_env
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
@@ -321,8 +322,10 @@ class SFDQN(OffPolicyAlgorithm):
         :param w: weights to act for in this call only; ``None`` for the model's weights
         :return: the actions and ``state``
         """
-        # Validate w first: an exploratory action must not hide bad weights.
+        # Validate w and the observation first: an exploratory action must not hide bad input.
         weights = self._weights if w is None else validate_weights(w, self.reward_dim)
+        if not isinstance(observation, dict):
+            observation = numeric_array(observation)
         if not deterministic and np.random.rand() < self.exploration_rate:
             vectorized = self.policy.is_vectorized_observation(observation)
             n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
