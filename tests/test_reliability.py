@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -169,3 +170,31 @@ def test_predict_takes_a_tensor_that_requires_grad_and_refuses_strings():
         for bad, dtype in ((np.array(["12"] + ["0"] * 13), "<U2"), (np.array(observation, dtype=object), "object")):
             with pytest.raises(ValueError, match=f"observations must be numbers .*, got an array of dtype {dtype}"):
                 predict(bad)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A real 8 MB file system (tmpfs), where mounting is allowed (root on Linux); skipped elsewhere."""
+    mount_point = tmp_path / "disk"
+    mount_point.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8M", "tmpfs", str(mount_point)], capture_output=True)
+    if mounted.returncode != 0:
+        pytest.skip("cannot mount a small file system here (needs root)")
+    yield mount_point
+    subprocess.run(["umount", "-l", str(mount_point)], check=True)
+
+
+def test_a_full_disk_stops_training_in_one_line_and_the_checkpoint_survives(small_disk):
+    out = small_disk / "run"
+    train = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(out), "--no-progress"]
+    budget = ["--steps-per-iteration", "150", "--n-test-weights", "2"]
+    assert subprocess.run([*train, *budget, "--iterations", "1"], capture_output=True).returncode == 0
+    filler = small_disk / "filler"
+    subprocess.run(["dd", "if=/dev/zero", f"of={filler}", "bs=64k"], capture_output=True)  # ends at ENOSPC
+    full = subprocess.run([*train, "--iterations", "2", "--resume"], capture_output=True, text=True)
+    assert full.returncode == 1 and "Traceback" not in full.stderr and len(full.stderr.strip().splitlines()) == 1
+    assert "No space left on device" in full.stderr
+    assert f"cannot write {out / 'run.json'}" in full.stderr and "it is as it was" in full.stderr  # the first write
+    filler.unlink()
+    assert subprocess.run([*train, "--iterations", "2", "--resume"], capture_output=True).returncode == 0
+    assert json.loads((out / "checkpoint.json").read_text())["iteration"] == 2

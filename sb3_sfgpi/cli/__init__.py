@@ -37,6 +37,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (UsageError, ValueError) as error:
         print(f"sb3-sfgpi {args.command}: error: {error}", file=sys.stderr)
         return 2
-    except TrainingStopped as error:
+    except (TrainingStopped, OSError) as error:  # OSError: a full disk, a file that cannot be written
         print(f"sb3-sfgpi {args.command}: error: {error}", file=sys.stderr)
         return 1

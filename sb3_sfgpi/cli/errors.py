@@ -6,4 +6,7 @@ class UsageError(Exception):
 
 
 class TrainingStopped(Exception):
-    """Training stopped by an error (e.g. the simulator died): reported as one line with exit code 1."""
+    """
+    Training stopped by an error (the simulator died, the disk is full, Ctrl-C or SIGTERM): reported as one line
+    with exit code 1, as an ``OSError`` outside training is.
+    """

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         with _sigterm_as_interrupt():
             model.learn(config["iterations"], progress_bar=not args.no_progress)
-    except (RuntimeError, KeyboardInterrupt) as error:
+    except (RuntimeError, OSError, KeyboardInterrupt) as error:  # a dead simulator, a full disk, Ctrl-C, SIGTERM
         raise TrainingStopped(_stopped_message(args, run_dir, model, error)) from error
     finally:
         model.close()

@@ -73,8 +73,19 @@ def atomic_write_json(path: str | Path, data: Any) -> None:
 
 
 def atomic_write_bytes(path: str | Path, payload: bytes) -> None:
-    """Write ``payload`` to a temporary file beside ``path``, flush it to disk, then rename it over ``path``."""
+    """
+    Write ``payload`` to a temporary file beside ``path``, flush it to disk, then rename it over ``path``.
+
+    :raises OSError: the write failed (a full disk, say): ``path`` is as it was, and the message names it
+    """
     path = Path(path)
+    try:
+        _write_and_rename(path, payload)
+    except OSError as error:
+        raise OSError(error.errno, f"cannot write {path} ({error.strerror or error}); it is as it was") from error
+
+
+def _write_and_rename(path: Path, payload: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
