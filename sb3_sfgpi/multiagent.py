@@ -9,8 +9,10 @@ callback)`` calls ``callback.on_step()`` after every joint step, and a callback 
 
 from __future__ import annotations
 
+import shutil
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -92,6 +94,16 @@ def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
         return SFDQN(env=view, weights=weights, seed=seed, **kwargs)
 
     return make
+
+
+def _remove_interrupted_logs(directory: str, log_name: str) -> None:
+    """
+    Delete the TensorBoard folders (``log_name_N``, SB3's naming) that an interrupted attempt at the same iteration
+    left: the iteration is done again from its start, and its logs replace theirs instead of lying beside them.
+    """
+    for folder in Path(directory).glob(f"{log_name}_*"):
+        if folder.name[len(log_name) + 1 :].isdigit() and folder.is_dir() and not folder.is_symlink():
+            shutil.rmtree(folder)
 
 
 class MultiAgentRunner:
@@ -217,13 +229,15 @@ class MultiAgentRunner:
             self.learners[agent] = learner
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for agent, learner in self.learners.items():
+            log_name = f"{agent}_iter{iteration:03d}"
             if self.tensorboard_log is not None:
                 learner.tensorboard_log = self.tensorboard_log
+                _remove_interrupted_logs(self.tensorboard_log, log_name)
             _, callback = learner._setup_learn(
                 total_timesteps,
                 self.learner_callback(agent) if self.learner_callback else None,
                 reset_num_timesteps=True,
-                tb_log_name=f"{agent}_iter{iteration:03d}",
+                tb_log_name=log_name,
             )
             callback.on_training_start(locals(), globals())
             callback.on_rollout_start()

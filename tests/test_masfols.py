@@ -184,11 +184,18 @@ def test_an_existing_runs_logs_survive_a_refused_learn_and_a_load(tmp_path):
     assert len(progress.read_text().splitlines()) == 4
 
 
-def test_a_killed_iterations_log_row_is_replaced_on_resume(tmp_path):
+def test_a_killed_iterations_logs_are_replaced_on_resume(tmp_path):
     make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=2)
     progress = tmp_path / "logs" / "progress.csv"
     finished = progress.read_text()
     progress.write_text(finished + finished.splitlines(keepends=True)[-1])  # a row logged, then killed: no checkpoint
+    tensorboard = tmp_path / "tensorboard"
+    for agent in ("agent_0", "agent_1"):  # the killed attempt at iteration 2 had started its TensorBoard logs
+        (tensorboard / f"{agent}_iter002_1").mkdir()
+        (tensorboard / f"{agent}_iter002_1" / "events.out.tfevents.killed").write_text("partial")
     MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=3)
     rows = progress.read_text().splitlines()
     assert progress.read_text().startswith(finished) and len(rows) == 4
+    folders = sorted(folder.name for folder in tensorboard.iterdir())
+    assert folders == [f"{agent}_iter{i:03d}_1" for agent in ("agent_0", "agent_1") for i in range(3)]
+    assert not list(tensorboard.glob("*/events.out.tfevents.killed"))
