@@ -48,7 +48,9 @@ from sb3_sfgpi.ols import OLS
 from sb3_sfgpi.policy_files import (
     CorruptPolicySetError,
     build_network,
+    declared_bytes,
     file_state,
+    memory_budget,
     network_spec,
     network_state,
     read_state_dict,
@@ -88,6 +90,17 @@ class PolicyInfo:
             "agent": self.agent,
             "iteration": self.iteration,
         }
+
+
+def _check_memory(n_policies: int, network_bytes: int) -> None:
+    """Refuse a manifest whose policies would take more than half of this machine's memory, before allocating."""
+    budget = memory_budget()
+    if budget is not None and n_policies * network_bytes > budget:
+        raise ValueError(
+            f"the manifest asks for {n_policies} policies of {network_bytes / 1e6:.1f} MB each "
+            f"({n_policies * network_bytes / 1e9:.1f} GB), more than half of this machine's memory "
+            f"({2 * budget / 1e9:.1f} GB)"
+        )
 
 
 class GPIPolicy:
@@ -439,6 +452,7 @@ class GPIPolicy:
             files = [entry["file"] for entry in manifest["policies"]]
             if len(set(files)) != len(files):
                 raise ValueError("the manifest lists a policy file more than once")
+            _check_memory(len(files), declared_bytes(manifest["network"], observation_space, action_space, reward_dim))
             for entry in manifest["policies"]:
                 if entry.get("value") is not None and not np.isfinite(np.asarray(entry["value"], dtype=float)).all():
                     raise ValueError(f"the value of {entry['file']!r} is not finite")

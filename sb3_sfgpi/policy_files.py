@@ -7,15 +7,18 @@ the dense ``"table.weight"`` (which is read too). Reading never runs code.
 
 from __future__ import annotations
 
+import itertools
+import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
-from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork
+from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, observation_radices
 
 _ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
 
@@ -75,10 +78,38 @@ def build_network(
     raise ValueError(f"unknown network kind {spec.get('kind')!r}")
 
 
+def declared_bytes(
+    spec: dict[str, Any], observation_space: spaces.Space, action_space: spaces.Discrete, reward_dim: int
+) -> int:
+    """
+    The memory one network of :func:`network_spec` data takes (float32 parameters), computed before building it.
+
+    :raises ValueError: unknown kind, or a space a table cannot index
+    """
+    outputs = int(action_space.n) * reward_dim
+    if spec.get("kind") == "tabular":
+        _, n_values = observation_radices(observation_space)
+        return int(np.prod(n_values.astype(np.float64))) * outputs * 4
+    if spec.get("kind") == "mlp":
+        sizes = [spaces.flatdim(observation_space), *[int(n) for n in spec["net_arch"]], outputs]
+        return sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes)) * 4
+    raise ValueError(f"unknown network kind {spec.get('kind')!r}")
+
+
+def memory_budget() -> int | None:
+    """Half of this machine's physical memory in bytes (None where the system does not say)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 2
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
 def read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
     path = directory / file
     if Path(file).name != file or not path.is_file():
         raise CorruptPolicySetError(f"policy file {file!r} listed in the manifest of {directory} is missing")
+    if path.is_symlink() and path.resolve().parent != directory.resolve():
+        raise CorruptPolicySetError(f"policy file {path} is a link that leaves the directory")
     try:
         state = th.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for truncated files and refused pickles

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch as th
 from conftest import BAD_WEIGHTS
+from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from momdp import (
@@ -26,6 +27,7 @@ from momdp import (
 )
 
 from sb3_sfgpi.gpi import MANIFEST, CorruptPolicySetError, GPIPolicy
+from sb3_sfgpi.policy_files import build_network, declared_bytes, memory_budget
 
 weights_2d = st.floats(0.0, 1.0).map(lambda t: np.array([1.0 - t, t]))
 
@@ -361,6 +363,22 @@ def file_listed_twice(directory: Path) -> None:
     (directory / MANIFEST).write_text(json.dumps(manifest))
 
 
+def link_leaving_the_directory(directory: Path) -> None:
+    shutil.copy(directory / "policy_001.pt", directory.parent / "outside.pt")
+    (directory / "policy_001.pt").unlink()
+    (directory / "policy_001.pt").symlink_to(directory.parent / "outside.pt")
+
+
+def more_policies_than_memory(directory: Path) -> None:
+    """Big tables (a Discrete(40,000,000) observation: 960 MB each), as many as half of this machine's memory takes."""
+    manifest = json.loads((directory / MANIFEST).read_text())
+    manifest["observation_space"] = {"type": "Discrete", "n": 40_000_000, "start": 0}
+    n = memory_budget() // declared_bytes({"kind": "tabular"}, spaces.Discrete(40_000_000), spaces.Discrete(3), 2) + 1
+    entry = manifest["policies"][0]
+    manifest["policies"] = [{**entry, "file": f"policy_{i:06d}.pt"} for i in range(n)]  # none of them is read
+    (directory / MANIFEST).write_text(json.dumps(manifest))
+
+
 def not_tensors(directory: Path) -> None:
     th.save({"table.weight": [1.0, 2.0]}, directory / "policy_001.pt")
 
@@ -401,6 +419,8 @@ def missing_key(directory: Path) -> None:
         (infinite_values, r"non-finite values \(NaN or inf\) in 'table.values'"),
         (non_finite_value_vector, "the value of 'policy_001.pt' is not finite"),
         (file_listed_twice, "lists a policy file more than once"),
+        (link_leaving_the_directory, "policy_001.pt is a link that leaves the directory"),
+        (more_policies_than_memory, r"policies of 960.0 MB each .* more than half of this machine's memory"),
         (sparse_rows_outside_the_table, "rows outside 0..4"),
         (sparse_table_of_another_shape, r"stored table has shape \(6, 6\), the network's is \(5, 6\)"),
         (sparse_values_not_matching_rows, r"rows \(2,\) and values \(3, 6\) do not match"),
@@ -474,3 +494,16 @@ def test_an_interrupted_save_keeps_the_previous_set_loadable(saved_set, monkeypa
     np.testing.assert_array_equal(
         after.successor_features(np.arange(N_STATES)), before.successor_features(np.arange(N_STATES))
     )
+
+
+@pytest.mark.parametrize(
+    ("spec", "observation_space"),
+    [
+        ({"kind": "tabular"}, spaces.MultiDiscrete([13, 13, 2, 2])),
+        ({"kind": "mlp", "net_arch": [64, 32], "activation_fn": "ReLU"}, spaces.Box(-1, 1, shape=(7,))),
+    ],
+)
+def test_the_memory_a_manifest_declares_is_what_its_networks_take(spec, observation_space):
+    net = build_network(spec, observation_space, spaces.Discrete(4), 3)
+    taken = sum(parameter.numel() * parameter.element_size() for parameter in net.parameters())
+    assert declared_bytes(spec, observation_space, spaces.Discrete(4), 3) == taken

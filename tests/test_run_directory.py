@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import stat
 
 import numpy as np
 import pytest
@@ -257,3 +258,14 @@ def test_remove_temporary_deletes_nothing_of_a_normal_directory(tmp_path):
     run_dir.remove_temporary()
     assert run_dir.is_run() and run_dir.has_checkpoint() and run_dir.has_evaluations()
     assert RunDirectory(tmp_path / "run").read_checkpoint() == checkpoint(1)
+
+
+@pytest.mark.parametrize(("umask", "mode"), [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_files_written_atomically_get_the_mode_the_umask_gives(tmp_path, umask, mode):
+    previous = os.umask(umask)
+    try:
+        atomic_write_json(tmp_path / "run.json", {"a": 1})
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE((tmp_path / "run.json").stat().st_mode) == mode
+    assert json.loads((tmp_path / "run.json").read_text()) == {"a": 1}
