@@ -448,6 +448,8 @@ class GPIPolicy:
             action_space = space_from_dict(manifest["action_space"])
             if not isinstance(action_space, spaces.Discrete):
                 raise ValueError(f"the action space must be Discrete, got {action_space}")
+            if not isinstance(manifest["network"], dict) or not isinstance(manifest["policies"], list):
+                raise ValueError("the manifest's 'network' must be an object and its 'policies' a list")
             policy_set = cls(device="cpu")
             files = [entry["file"] for entry in manifest["policies"]]
             if len(set(files)) != len(files):

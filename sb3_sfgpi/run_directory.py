@@ -23,10 +23,11 @@ import csv
 import io
 import shutil
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch as th
 from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoardOutputFormat
 
@@ -46,6 +47,43 @@ SUMMARY_FIELDS = (
     "wall_time",
     "eval_time",
 )
+
+
+def _integer(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _weights(value: Any, ndim: int) -> bool:
+    """A non-empty array of non-negative finite numbers with ``ndim`` dimensions."""
+    if not isinstance(value, list) or not value:
+        return False
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return array.ndim == ndim and array.size > 0 and bool(np.isfinite(array).all() and (array >= 0).all())
+
+
+def _summary_row(row: Any, index: int) -> bool:
+    """Whether ``row`` is the summary of iteration ``index``: its counts integers, its measures finite numbers."""
+    if not isinstance(row, dict) or row.get("iteration") != index or not _integer(row["iteration"]):
+        return False
+    counts = ("timesteps", "n_policies", "ccs_size")
+    measures = ("mean_return", "mean_return_undiscounted", "expected_utility", "wall_time", "eval_time")
+    finite = all(isinstance(row.get(k), (int, float)) and np.isfinite(row[k]) for k in measures)
+    return finite and all(_integer(row.get(k)) for k in counts) and isinstance(row.get("test", []), list)
+
+
+#: What the known settings of ``run.json`` must be (others are kept as they are).
+_SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
+    **dict.fromkeys(("domain", "algorithm", "policy", "gpi_set", "value_mode"), lambda v: isinstance(v, str)),
+    **dict.fromkeys(("env_kwargs", "learner_kwargs"), lambda v: isinstance(v, dict)),
+    **dict.fromkeys(("seed", "iterations", "steps_per_iteration", "n_test_weights", "validation_weights"), _integer),
+    **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers"), _integer),
+    "transfer": lambda v: isinstance(v, bool),
+    "test_weights": lambda v: _weights(v, 2),
+    "weights": lambda v: isinstance(v, str) or _weights(v, 1),
+}
 
 
 class RunDirectory:
@@ -114,17 +152,26 @@ class RunDirectory:
         return (self.policy_set_dir / MANIFEST).is_file()
 
     # --- run.json ---------------------------------------------------------------------------------------------
-    def read_config(self) -> dict[str, Any]:
+    def read_config(self, required: Sequence[str] = ()) -> dict[str, Any]:
         """
-        The run's description.
+        The run's description, the kinds of its known settings checked.
 
-        :raises ValueError: not a run directory, or a ``run.json`` that is not a JSON object
+        :param required: settings it must hold (e.g. the CLI's ``domain``)
+        :raises ValueError: not a run directory, a ``run.json`` that is not a JSON object, a setting of the wrong
+            kind, or a required one missing
         """
         if not self.is_run():
             raise ValueError(f"{self.path} is not a run directory (no {self.RUN})")
-        config = read_json(self.path / self.RUN, "run description")
+        path = self.path / self.RUN
+        config = read_json(path, "run description")
         if not isinstance(config, dict):
-            raise ValueError(f"run description {self.path / self.RUN} is not a JSON object")
+            raise ValueError(f"run description {path} is not a JSON object")
+        for key in required:
+            if key not in config:
+                raise ValueError(f"run description {path} lacks {key!r}")
+        for key, value in config.items():
+            if key in _SETTING_KINDS and not _SETTING_KINDS[key](value):
+                raise ValueError(f"run description {path}: {key!r} has a value of the wrong kind: {value!r}")
         return config
 
     def write_config(self, config: dict[str, Any]) -> None:
@@ -183,10 +230,15 @@ class RunDirectory:
 
     def read_history(self, n_iterations: int | None = None) -> list[dict[str, Any]]:
         """The rows of ``evaluation.json``, or its first ``n_iterations`` (those the checkpoint counts)."""
-        history = read_json(self.path / self.EVALUATION_JSON, "evaluation")
+        path = self.path / self.EVALUATION_JSON
+        history = read_json(path, "evaluation")
         if not isinstance(history, list) or (n_iterations is not None and len(history) < n_iterations):
-            raise ValueError(f"evaluation {self.path / self.EVALUATION_JSON} does not hold the checkpoint's rows")
-        return history if n_iterations is None else history[:n_iterations]
+            raise ValueError(f"evaluation {path} does not hold the checkpoint's rows")
+        history = history if n_iterations is None else history[:n_iterations]
+        for index, row in enumerate(history):
+            if not _summary_row(row, index):
+                raise ValueError(f"evaluation {path}: row {index} is not the summary of iteration {index}")
+        return history
 
     def read_summary(self) -> list[dict[str, str]]:
         """

@@ -54,7 +54,7 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
         (["--learner", "gamma=2"], "gamma must be a number in [0, 1], got 2"),
         (["--learner", "batch_size=0"], "batch_size must be a positive integer, got 0"),
         (["--validation-weights", "-1"], "--validation-weights must be 0 or more, got -1"),
-        (["--env", "nosuchkey=1"], "--env: the four-room env refuses"),
+        (["--env", "nosuchkey=1"], "the four-room env refuses"),
         (["--env", "observation_mode=bogus"], "unknown observation_mode 'bogus'"),
         (["--learner", "nosuchkwarg=1"], "unexpected keyword argument 'nosuchkwarg'"),
         (["--learner", "learning_rate=abc"], "learning_rate must be a number >= 0 or a schedule, got 'abc'"),

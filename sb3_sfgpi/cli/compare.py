@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.cli.presets import DomainPreset, load_domain
+from sb3_sfgpi.cli.presets import CLI_SETTINGS, DomainPreset, load_domain
 from sb3_sfgpi.cli.values import check_weights, format_weights
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.serialization import atomic_write_json
@@ -59,10 +59,11 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Evaluate every method on the same episodes; write the comparison file and print its table."""
     run_dir = RunDirectory(args.run_dir)
-    config = run_dir.read_config()
+    config = run_dir.read_config(required=CLI_SETTINGS)
     if config.get("algorithm") == "fixed":
         raise UsageError(f"{args.run_dir} is a fixed-weight run: pass it with --fixed, after an MA-SFOLS run")
     preset = load_domain(config["domain"])
+    preset.build_env(config["env_kwargs"]).close()  # a damaged run.json: one line here, not in a worker
     if args.episodes < 1:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
     if args.seed < 0:
@@ -102,7 +103,7 @@ def _fixed_runs(args: argparse.Namespace, config: dict[str, Any]) -> list[tuple[
     runs = []
     for path in args.fixed:
         fixed = RunDirectory(path)
-        fixed_config = fixed.read_config()
+        fixed_config = fixed.read_config(required=CLI_SETTINGS)
         if fixed_config.get("algorithm") != "fixed" or fixed_config.get("domain") != config["domain"]:
             raise UsageError(f"--fixed {path} is not a fixed-weight run of {config['domain']}")
         if fixed_config.get("env_kwargs") != config["env_kwargs"]:
@@ -157,7 +158,7 @@ def _run(
             return evaluator.run([job for _, job in planned])
     results = []
     for _, job in planned:
-        env = preset.make_env(**{**env_kwargs, **dict(job.env_overrides)})
+        env = preset.build_env({**env_kwargs, **dict(job.env_overrides)})
         try:
             results.append(run_job(env, job, gamma))
         finally:

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.cli.presets import load_domain
+from sb3_sfgpi.cli.presets import CLI_SETTINGS, load_domain
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.run_directory import RunDirectory
@@ -29,7 +29,7 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run GPI for ``--w`` and print every agent's vector return."""
     run_dir = RunDirectory(args.run_dir)
-    config = run_dir.read_config()
+    config = run_dir.read_config(required=CLI_SETTINGS)
     which = args.gpi_set or config.get("gpi_set", "all")
     n_policies = run_dir.read_checkpoint()["n_policies"] if run_dir.has_checkpoint() else None
     policy_set = run_dir.load_policy_set(n_policies, device=args.device)  # what the last checkpoint counts
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
     if args.seed < 0:
         raise UsageError(f"--seed must be 0 or more (the environment's reset seed), got {args.seed}")
-    env = load_domain(config["domain"]).make_env(**config["env_kwargs"])
+    env = load_domain(config["domain"]).build_env(config["env_kwargs"])
     gamma = config["learner_kwargs"].get("gamma", 0.99)
     try:
         result = run_episodes(env, policy_set.joint_policy(w), args.episodes, gamma, seed=args.seed)

@@ -15,6 +15,8 @@ from typing import Any
 from sb3_sfgpi.cli.errors import UsageError
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
+#: The settings of a run's ``run.json`` that the commands read to rebuild its env and learners.
+CLI_SETTINGS = ("domain", "env_kwargs", "learner_kwargs")
 
 
 @dataclass(frozen=True)
@@ -84,6 +86,17 @@ class DomainPreset:
         preset = cls(name=name, **data)
         preset._check()
         return preset
+
+    def build_env(self, env_kwargs: dict[str, Any]) -> Any:
+        """
+        The domain's env with ``env_kwargs``.
+
+        :raises UsageError: the env refuses them (an unknown argument, a value out of range)
+        """
+        try:
+            return self.make_env(**env_kwargs)
+        except (TypeError, ValueError) as error:
+            raise UsageError(f"the {self.name} env refuses {env_kwargs}: {error}") from error
 
     def _check(self) -> None:
         if not callable(self.make_env):

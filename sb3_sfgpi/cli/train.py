@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
-from sb3_sfgpi.cli.presets import DomainPreset, load_domain
+from sb3_sfgpi.cli.presets import CLI_SETTINGS, DomainPreset, load_domain
 from sb3_sfgpi.cli.values import check_weights, key_values
 from sb3_sfgpi.masfols import MASFOLS, SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     import torch as th
 
     th.set_num_threads(args.torch_threads)
-    model = _model(args, preset, _env(args, preset, config), _created(run_dir), config)
+    model = _model(args, preset, preset.build_env(config["env_kwargs"]), _created(run_dir), config)
     try:
         with _sigterm_as_interrupt():
             model.learn(config["iterations"], progress_bar=not args.no_progress)
@@ -201,7 +201,7 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
     """The stored configuration with the new iteration cap; refuses options given that would change the run."""
     if not run_dir.is_run():
         raise UsageError(f"--resume: {run_dir} is not a run directory (no {RunDirectory.RUN})")
-    saved = run_dir.read_config()
+    saved = run_dir.read_config(required=CLI_SETTINGS)
     for option, key in (("--env", "env_kwargs"), ("--learner", "learner_kwargs")):
         if getattr(args, option[2:]) and config[key] != saved.get(key):
             raise UsageError(f"--resume: {option} would change the run's {key} ({saved.get(key)})")
@@ -214,14 +214,6 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
         if saved.get(key) != config.get(key):
             raise UsageError(f"--resume: {run_dir} is a run with {key}={saved.get(key)!r}, not {config.get(key)!r}")
     return {**saved, "iterations": config["iterations"]}
-
-
-def _env(args: argparse.Namespace, preset: DomainPreset, config: dict[str, Any]) -> Any:
-    """The domain's env with the run's arguments; a one-line error where it refuses them."""
-    try:
-        return preset.make_env(**config["env_kwargs"])
-    except (TypeError, ValueError) as error:  # an unknown argument, a value out of range
-        raise UsageError(f"--env: the {args.domain} env refuses {config['env_kwargs']}: {error}") from error
 
 
 def _created(run_dir: RunDirectory) -> RunDirectory:
