@@ -29,7 +29,7 @@ from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, summarize_test_episodes
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
-from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
 
 
@@ -358,9 +358,8 @@ class OLSCallback(BaseCallback):
         ]
 
     def _log(self, summary: dict[str, Any]) -> None:
-        for key, value in summary.items():
-            if value is not None:
-                self.logger.record(f"ols/{key}", value)
+        for key, value in summary_scalars(summary).items():
+            self.logger.record(key, value)
         self.logger.dump(step=self.iteration)
         if self.verbose:
             print(

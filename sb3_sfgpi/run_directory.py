@@ -49,6 +49,11 @@ SUMMARY_FIELDS = (
 )
 
 
+def summary_scalars(row: dict[str, Any]) -> dict[str, Any]:
+    """The logged scalars (``ols/<field>``) of an iteration's summary row; fields without a value are left out."""
+    return {f"ols/{key}": row[key] for key in SUMMARY_FIELDS if row.get(key) is not None}
+
+
 def _integer(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -256,12 +261,20 @@ class RunDirectory:
         """
         The runner's SB3 logger on ``logs/``: ``progress.csv`` (one row per finished iteration) and TensorBoard.
         An existing ``progress.csv`` is continued, not truncated: it keeps its header and the rows of the
-        iterations the checkpoint counts (those of an iteration killed before its checkpoint are dropped).
+        iterations the checkpoint counts (those of an iteration killed before its checkpoint are dropped). The
+        TensorBoard scalars are written anew from ``evaluation.json``, so that they too hold each iteration the
+        checkpoint counts exactly once.
         """
         self.logs_dir.mkdir(parents=True, exist_ok=True)
         done = self.read_checkpoint()["iteration"] if self.has_checkpoint() else 0
         progress = _ContinuedCSV(str(self.logs_dir / "progress.csv"), keep_rows=done)
-        return Logger(str(self.logs_dir), [progress, TensorBoardOutputFormat(str(self.logs_dir))])
+        for events in self.logs_dir.glob("events.out.tfevents.*"):
+            events.unlink()
+        tensorboard = TensorBoardOutputFormat(str(self.logs_dir))
+        for row in self.read_history(done) if done else []:
+            scalars = summary_scalars(row)
+            tensorboard.write(scalars, dict.fromkeys(scalars, ()), step=row["iteration"])
+        return Logger(str(self.logs_dir), [progress, tensorboard])
 
 
 class _ContinuedCSV(CSVOutputFormat):

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 from momdp import REWARDS, TERMINAL
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
+from stable_baselines3.common.logger import TensorBoardOutputFormat
+from tensorboard_scalars import scalar_steps
 
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.gpi import GPIPolicy
@@ -193,9 +195,14 @@ def test_a_killed_iterations_logs_are_replaced_on_resume(tmp_path):
     for agent in ("agent_0", "agent_1"):  # the killed attempt at iteration 2 had started its TensorBoard logs
         (tensorboard / f"{agent}_iter002_1").mkdir()
         (tensorboard / f"{agent}_iter002_1" / "events.out.tfevents.killed").write_text("partial")
+    killed_scalars = TensorBoardOutputFormat(str(tmp_path / "logs"))  # its OLS scalars too
+    killed_scalars.write({"ols/iteration": 2}, {"ols/iteration": ()}, step=2)
+    killed_scalars.close()
     MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=3)
     rows = progress.read_text().splitlines()
     assert progress.read_text().startswith(finished) and len(rows) == 4
     folders = sorted(folder.name for folder in tensorboard.iterdir())
     assert folders == [f"{agent}_iter{i:03d}_1" for agent in ("agent_0", "agent_1") for i in range(3)]
     assert not list(tensorboard.glob("*/events.out.tfevents.killed"))
+    assert scalar_steps(tmp_path / "logs", "ols/iteration") == [0, 1, 2]
+    assert scalar_steps(tmp_path / "logs", "ols/mean_return") == [0, 1, 2]

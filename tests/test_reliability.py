@@ -14,6 +14,7 @@ import pytest
 import torch as th
 from conftest import FIG1_TABULAR_KWARGS
 from momdp import Fig1MOMDP
+from tensorboard_scalars import scalar_steps
 
 from sb3_sfgpi.cli import main, parse_args
 from sb3_sfgpi.cli.train import _stopped_message
@@ -121,6 +122,36 @@ def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
     assert len(stderr.strip().splitlines()) == 1
     assert "(interrupted by SIGTERM)" in stderr and "is intact: continue with" in stderr
     assert f"--out {out} --resume --iterations 1000`" in stderr
+
+
+def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_path):
+    def train(out, timeout=None):
+        argv = ["train", "four-room", "--iterations", "3", "--steps-per-iteration", "300", "--n-test-weights", "2"]
+        argv += ["--out", str(out), "--no-progress", *(["--resume"] if (out / "run.json").exists() else [])]
+        process = subprocess.Popen([sys.executable, "-m", "sb3_sfgpi.cli", *argv], stdout=subprocess.DEVNULL)
+        try:
+            return process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            process.kill()  # SIGKILL: no handler runs
+            return process.wait()
+
+    assert train(tmp_path / "whole") == 0
+    cut, kills = tmp_path / "cut", 0
+    for delay in np.random.default_rng(12).uniform(3, 9, size=4):
+        kills += train(cut, timeout=delay) != 0
+        if (cut / "checkpoint.json").exists() and json.loads((cut / "checkpoint.json").read_text())["iteration"] == 3:
+            break
+    assert kills >= 1 and train(cut) == 0
+    whole = json.loads((tmp_path / "whole" / "evaluation.json").read_text())
+    assert [row["mean_return"] for row in json.loads((cut / "evaluation.json").read_text())] == [
+        row["mean_return"] for row in whole
+    ]
+    progress = (cut / "logs" / "progress.csv").read_text().splitlines()
+    column = progress[0].split(",").index("ols/iteration")
+    assert [int(row.split(",")[column]) for row in progress[1:]] == [0, 1, 2]
+    assert scalar_steps(cut / "logs", "ols/mean_return") == [0, 1, 2]
+    folders = sorted(folder.name for folder in (cut / "tensorboard").iterdir())
+    assert folders == [f"{agent}_iter{i:03d}_1" for agent in ("agent_0", "agent_1") for i in range(3)]
 
 
 def test_the_stop_message_repeats_the_iteration_cap(tmp_path):

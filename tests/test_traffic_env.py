@@ -67,10 +67,10 @@ class WaitingRecorder(traci.StepListener):
             self.veh_lanes[j] = [ln for ln in controlled if not ln.startswith(":")]
             areas = [ln.rsplit("_", 1)[0] for ln in controlled if ln.startswith(":")]
             sidewalks = [
-                e for e in api.junction.getIncomingEdges(j)
-                if not e.startswith(":") and any(
-                    "pedestrian" in api.lane.getAllowed(f"{e}_{k}") for k in range(api.edge.getLaneNumber(e))
-                )
+                e
+                for e in api.junction.getIncomingEdges(j)
+                if not e.startswith(":")
+                and any("pedestrian" in api.lane.getAllowed(f"{e}_{k}") for k in range(api.edge.getLaneNumber(e)))
             ]
             self.ped_edges[j] = sidewalks + areas
         self.entry = defaultdict(dict)  # tls -> vehicle -> accumulated waiting time when first seen
@@ -242,8 +242,12 @@ def test_min_max_green_and_yellow(make_env, policy, kwargs):
         assert len(seq) == 200
         assert rec.programs[j] == {"online"}  # SUMO's own program never runs
         greens = _check_phase_rules(
-            seq, min_green=min_g, max_green=max_g, yellow_time=env.yellow_time,
-            greens=prog.greens, yellows=prog.yellows,
+            seq,
+            min_green=min_g,
+            max_green=max_g,
+            yellow_time=env.yellow_time,
+            greens=prog.greens,
+            yellows=prog.yellows,
         )
         if policy == "always_keep":
             assert set(greens) == {max_g}
@@ -368,8 +372,11 @@ def test_one_libsumo_simulation_per_process(make_env):
 
 
 def test_traci_runs_next_to_libsumo(make_env):
-    envs = [make_env(seed=7, num_seconds=60), make_env(seed=7, num_seconds=60, backend="traci"),
-            make_env(seed=7, num_seconds=60, backend="traci")]
+    envs = [
+        make_env(seed=7, num_seconds=60),
+        make_env(seed=7, num_seconds=60, backend="traci"),
+        make_env(seed=7, num_seconds=60, backend="traci"),
+    ]
     for e in envs:
         e.reset()
     assert envs[1].sim.label != envs[2].sim.label

@@ -35,8 +35,11 @@ def test_build_reproduces_committed_network(tmp_path):
 
 def test_network_layout():
     root = ET.parse(NET_FILE).getroot()
-    nodes = {j.get("id"): (float(j.get("x")), float(j.get("y"))) for j in root.iter("junction")
-             if not j.get("id").startswith(":")}
+    nodes = {
+        j.get("id"): (float(j.get("x")), float(j.get("y")))
+        for j in root.iter("junction")
+        if not j.get("id").startswith(":")
+    }
     edges = {e.get("id"): e for e in root.iter("edge") if e.get("function") is None}
     # every link is one-way, joins nodes 150 m apart and has two vehicle lanes
     assert len(edges) == 10
