@@ -83,6 +83,16 @@ def test_damaged_run_files_give_one_line_errors(run_dir, tmp_path, capsys, file_
         assert "Traceback" not in error and len(error.strip().splitlines()) <= 1
 
 
+@pytest.mark.parametrize("file", ["run.json", "checkpoint.json", "evaluation.json"])
+def test_a_json_nested_too_deep_gives_one_line(run_dir, tmp_path, capsys, file):
+    copy = damaged_copy(run_dir, tmp_path, file, None, None)
+    (copy / file).write_text("[" * 100_000 + "]" * 100_000)
+    assert main(["evaluate", str(copy), "--w", "0.2", "0.3", "0.5"]) == (0 if file == "evaluation.json" else 2)
+    assert main(["train", "four-room", "--out", str(copy), "--resume", "--no-progress"]) == 2
+    error = capsys.readouterr().err
+    assert "is not valid JSON" in error and "Traceback" not in error
+
+
 @FUZZ
 @given(
     key=st.sampled_from(["reward_dim", "observation_space", "action_space", "network", "policies", "version"]),

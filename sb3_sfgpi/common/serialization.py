@@ -119,7 +119,7 @@ def read_json(path: str | Path, what: str) -> Any:
         raise ValueError(f"{what} {path} does not exist")
     try:
         return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as error:  # RecursionError: nested too deep
         raise ValueError(f"{what} {path} is not valid JSON (truncated or corrupt?): {error}") from error
 
 
