@@ -1,6 +1,7 @@
 """sb3-sfgpi: successor features, OLS and GPI for Stable-Baselines3."""
 
 from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, PolicyValidation, ValueEstimation
+from sb3_sfgpi.common.parallel_wrappers import FlattenObservations, SwapTerminationsTruncations
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.multiagent import MultiAgentRunner
@@ -16,6 +17,7 @@ __all__ = [
     "SFDQN",
     "EvaluationConfig",
     "FixedSchedule",
+    "FlattenObservations",
     "GPIPolicy",
     "MultiAgentRunner",
     "OLSCallback",
@@ -23,6 +25,7 @@ __all__ = [
     "PolicyValidation",
     "RandomSchedule",
     "RunDirectory",
+    "SwapTerminationsTruncations",
     "ValueEstimation",
     "__version__",
 ]

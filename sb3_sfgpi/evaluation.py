@@ -24,6 +24,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from sb3_sfgpi.common.metrics import expected_utility
+from sb3_sfgpi.common.parallel_wrappers import flattened
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.serialization import jsonable
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
@@ -119,7 +120,7 @@ def _worker_env(overrides: tuple[tuple[str, Any], ...]) -> ParallelEnv:
         if _worker["env"] is not None:
             _worker["env"].close()
             _worker["env"] = None
-        _worker["env"] = _worker["env_fn"](**{**_worker["env_kwargs"], **dict(overrides)})
+        _worker["env"] = flattened(_worker["env_fn"](**{**_worker["env_kwargs"], **dict(overrides)}))
         _worker["env_key"] = overrides
     return _worker["env"]
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import shutil
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 from tqdm.auto import tqdm
 
+from sb3_sfgpi.common.parallel_wrappers import flattened, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.sfdqn import SFDQN
@@ -114,7 +116,9 @@ class MultiAgentRunner:
     env is reset, which happens when no agent is left. A time-limit truncation is stored as such
     (it bootstraps), a termination is not.
 
-    :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents
+    :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents; composite
+        observation spaces (``Tuple``, ``Dict``) are flattened
+        (:class:`~sb3_sfgpi.common.parallel_wrappers.FlattenObservations`)
     :param learner_factory: builds an agent's learner; see :func:`default_learner_factory`
     :param seed: seed of the run (learners and resets derive theirs from it)
     :param gamma: discount of the Monte-Carlo evaluation (default: the learners')
@@ -133,8 +137,11 @@ class MultiAgentRunner:
         tensorboard_log: str | None = None,
         verbose: int = 0,
     ):
-        self.env = env
+        self.env = env = flattened(env)
         self.agents: list[str] = list(env.possible_agents)
+        self._time_limit = time_limit(env)
+        self._episode_steps = 0
+        self._warned_swap = False
         self.learner_factory = learner_factory or default_learner_factory()
         self.seed = seed
         self.learner_callback = learner_callback
@@ -246,6 +253,7 @@ class MultiAgentRunner:
     def reset_env(self, seed: int | None = None) -> None:
         """Reset the shared env and hand every learner its first observation (training continues from there)."""
         obs, _ = self.env.reset(seed=seed)
+        self._episode_steps = 0
         for agent in self.agents:
             batched = np.asarray(obs[agent])[None]
             self.views[agent].current_obs = batched[0]
@@ -266,6 +274,8 @@ class MultiAgentRunner:
             actions[agent], buffer_actions[agent] = int(action[0]), buffer_action
         obs, rewards, terminations, truncations, infos = self.env.step(actions)
         self.num_timesteps += 1
+        self._episode_steps += 1
+        self._check_truncations(terminations, truncations)
         keep_going = True
         for agent in actions:
             keep_going &= self._learner_step(
@@ -280,6 +290,20 @@ class MultiAgentRunner:
         if not self.env.agents:
             self.reset_env()
         return keep_going
+
+    def _check_truncations(self, terminations: dict[str, bool], truncations: dict[str, bool]) -> None:
+        """Warn once where every agent is truncated before the env's declared time limit: swapped flags?"""
+        if self._warned_swap or self.env.agents or self._time_limit is None:
+            return
+        truncated = all(truncations.get(a, False) and not terminations.get(a, False) for a in truncations)
+        if truncated and self._episode_steps < self._time_limit:
+            self._warned_swap = True
+            warnings.warn(
+                f"every agent was truncated after {self._episode_steps} steps, before the env's time limit "
+                f"({self._time_limit}): does it return terminations and truncations swapped (MOMAland 0.2's item "
+                "gathering and beach do)? Then wrap it in sb3_sfgpi.SwapTerminationsTruncations",
+                stacklevel=3,
+            )
 
     def _learner_step(
         self,
