@@ -3,9 +3,12 @@
 Trains both algorithms for several seeds (``sb3-sfgpi train four-room``, two runs at a time), draws the
 mean ± std of GPI's return over the 12 test weights after every iteration (``sb3-sfgpi plot``), and prints
 per iteration the mean over seeds, the iteration at which each algorithm reaches 95% of its final value and
-the wall time of the runs.
+the wall time of the runs. With ``--apriori-seeds`` it also trains the reference: one learner pair per test weight
+and seed, trained a priori for that weight with a whole run's budget (``train --algo fixed``), drawn as a line.
+Finished runs are skipped and interrupted ones resumed.
 
     python examples/four_room.py --seeds 0 1 2 --out runs/fig4
+    python examples/four_room.py --seeds 0 1 2 --apriori-seeds 0 --out runs/fig4   # 12 more runs of 6-12 minutes
     python examples/four_room.py --env observation_mode=xy --out runs/fig4-xy --figure docs/figures/four_room_xy.png
 """
 
@@ -19,12 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
+from sb3_sfgpi.cli.plot import a_priori_reference
+from sb3_sfgpi.cli.presets import load_domain
+from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.plots import align_runs
 from sb3_sfgpi.run_directory import RunDirectory
 
 
-def train(out: Path, algo: str, seed: int, extra: list[str]) -> Path:
-    run = out / f"{algo}-s{seed}"
+def train(out: Path, algo: str, seed: int, extra: list[str], name: str | None = None) -> Path:
+    run = out / f"{name or algo}-s{seed}"
     resume = ["--resume"] if RunDirectory(run).is_run() else []
     command = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--algo", algo, "--seed", str(seed)]
     subprocess.run([*command, "--out", str(run), "--no-progress", *resume, *extra], check=True)
@@ -45,6 +51,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, help="iterations per run (default: the domain's)")
     parser.add_argument("--steps-per-iteration", type=int, help="joint steps per iteration (default: the domain's)")
     parser.add_argument("--workers", type=int, default=2, help="runs trained at the same time")
+    parser.add_argument("--apriori-seeds", type=int, nargs="*", default=[], help="seeds of the a-priori reference")
     parser.add_argument(
         "--env", metavar="KEY=VALUE", action="append", default=[], help="env override, e.g. observation_mode=xy"
     )
@@ -58,6 +65,9 @@ def main() -> None:
     jobs = [(algo, seed) for seed in args.seeds for algo in ("ma-sfols", "random")]
     with ThreadPoolExecutor(args.workers) as pool:
         runs = list(pool.map(lambda job: train(args.out, *job, extra), jobs))
+        apriori = list(
+            pool.map(lambda job: train(args.out, "fixed", job[0], job[1], job[2]), apriori_jobs(args, extra))
+        )
 
     subprocess.run(
         [
@@ -68,6 +78,7 @@ def main() -> None:
             *map(str, runs),
             "-o",
             str(args.figure),
+            *(["--fixed", *map(str, apriori)] if apriori else []),
             "--title",
             "Four-Room: GPI return over 12 test weights (both agents)",
         ],
@@ -88,6 +99,25 @@ def main() -> None:
         wall = np.mean([float(rs[-1]["wall_time"]) for rs in rows])
         cells = " | ".join(f"{m:.3f} ± {s:.3f}" for m, s in zip(mean, std, strict=True))
         print(f"| {algo} | {cells} | {first_within(mean)} | {wall:.0f} |")
+        if apriori:
+            print(f"  final / a priori: {mean[-1] / a_priori_reference(apriori).mean:.3f}")
+    if apriori:
+        reference = a_priori_reference(apriori)
+        print(f"{reference.label}: {reference.mean:.3f} ± {reference.std:.3f}")
+
+
+def apriori_jobs(args: argparse.Namespace, extra: list[str]) -> list[tuple[int, list[str], str]]:
+    """(seed, options, name) of the a-priori runs: per seed and test weight, the budget of a whole run at once."""
+    preset = load_domain("four-room")
+    iterations = args.iterations or preset.iterations
+    budget = iterations * (args.steps_per_iteration or preset.steps_per_iteration)
+    weights = random_weights(3, preset.n_test_weights, rng=0)  # MASFOLS's test weights
+    options = [*(item for item in extra if item.startswith("--env")), "--iterations", "1"]
+    return [
+        (seed, [*options, "--steps-per-iteration", str(budget), "--w", *map(str, w)], f"fixed-w{i}")
+        for seed in args.apriori_seeds
+        for i, w in enumerate(weights)
+    ]
 
 
 def read_rows(run: Path) -> list[dict[str, str]]:
