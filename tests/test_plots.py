@@ -42,25 +42,28 @@ def figures(monkeypatch) -> list[dict]:
     return seen
 
 
+def summary_row(i: int, value: float, hypervolume: float | None = None) -> dict:
+    """The summary row of iteration ``i`` with GPI's mean return ``value``."""
+    return {
+        "iteration": i,
+        "timesteps": 100 * (i + 1),
+        "n_policies": i + 1,
+        "ccs_size": i + 1,
+        "mean_return": value,
+        "mean_return_undiscounted": value,
+        "expected_utility": value,
+        "hypervolume": hypervolume,
+        "wall_time": float(i),
+        "eval_time": 0.1,
+    }
+
+
 def write_run(path, mean_returns, hypervolumes=None) -> RunDirectory:
     run_dir = RunDirectory(path)
     run_dir.write_config({"domain": "four-room", "algorithm": "ma-sfols"})
-    history = []
-    for i, value in enumerate(mean_returns):
-        history.append(
-            {
-                "iteration": i,
-                "timesteps": 100 * (i + 1),
-                "n_policies": i + 1,
-                "ccs_size": i + 1,
-                "mean_return": value,
-                "mean_return_undiscounted": value,
-                "expected_utility": value,
-                "hypervolume": None if hypervolumes is None else hypervolumes[i],
-                "wall_time": float(i),
-                "eval_time": 0.1,
-            }
-        )
+    history = [
+        summary_row(i, value, None if hypervolumes is None else hypervolumes[i]) for i, value in enumerate(mean_returns)
+    ]
     run_dir.write_iteration(history, {"iteration": len(history), "timesteps": 0, "n_policies": 0})
     return run_dir
 
@@ -117,7 +120,7 @@ def write_fixed_run(path, w, seed, at_w, elsewhere=0.0) -> RunDirectory:
         {"weights": [1.0, 0.0], "agents": {"a": {"discounted": [elsewhere, 0.0]}, "b": {"discounted": [elsewhere, 0]}}},
         {"weights": w, "agents": {"a": {"discounted": at_w[0]}, "b": {"discounted": at_w[1]}}},
     ]
-    run_dir.write_iteration([{"iteration": 0, "test": test}], {"iteration": 1, "timesteps": 0, "n_policies": 1})
+    run_dir.write_iteration([{**summary_row(0, 0.0), "test": test}], {"iteration": 1, "timesteps": 0, "n_policies": 1})
     return run_dir
 
 
