@@ -398,6 +398,8 @@ class OLSCallback(BaseCallback):
         self.model.num_timesteps = state["timesteps"]
         if state["next_weights"] is None:
             return None
+        if set(state["next_weights"]) != set(self.model.agents):
+            raise ValueError(f"checkpoint of {self.run_dir}: 'next_weights' is not for the agents {self.model.agents}")
         return {agent: np.asarray(w, dtype=np.float64) for agent, w in state["next_weights"].items()}
 
     def _on_training_end(self) -> None:

@@ -229,8 +229,12 @@ class RunDirectory:
         if not isinstance(state.get("schedule"), dict) or not isinstance(state["schedule"].get("ols"), dict):
             raise ValueError(f"checkpoint {path}: no 'schedule' state (written by another version of sb3-sfgpi?)")
         next_weights = state.get("next_weights")
-        if next_weights is not None and not isinstance(next_weights, dict):
-            raise ValueError(f"checkpoint {path}: 'next_weights' must be null or an object, got {next_weights!r}")
+        if next_weights is not None and not (
+            isinstance(next_weights, dict) and all(_weights(w, 1) for w in next_weights.values())
+        ):
+            raise ValueError(
+                f"checkpoint {path}: 'next_weights' must be null or agent -> weights, got {next_weights!r}"
+            )
         return state
 
     def read_history(self, n_iterations: int | None = None) -> list[dict[str, Any]]:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from sb3_sfgpi.cli import main
@@ -70,6 +70,8 @@ CHECKPOINT_KEYS = ["iteration", "timesteps", "n_policies", "schedule", "next_wei
     ),
     value=JSON,
 )
+@example(file_and_key=("checkpoint.json", "next_weights"), value={"": {}})  # found by CI's run
+@example(file_and_key=("run.json", "env_kwargs"), value={"": None})
 def test_damaged_run_files_give_one_line_errors(run_dir, tmp_path, capsys, file_and_key, value):
     file, key = file_and_key
     copy = damaged_copy(run_dir, tmp_path, file, key, value)
