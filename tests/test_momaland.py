@@ -63,3 +63,11 @@ def test_our_wrappers_pass_pettingzoos_api_test():
 def test_flattening_keeps_flat_spaces_as_they_are():
     env = mobeach_v0.parallel_env(num_agents=3)
     assert not needs_flattening(env)
+
+
+def test_four_room_passes_momalands_api_test():
+    from momaland.test.api_test import api_test
+    from momaland.utils.conversions import mo_parallel_to_aec
+    from sfgpi_envs import FourRoomParallelEnv
+
+    api_test(mo_parallel_to_aec(FourRoomParallelEnv()), num_cycles=300)  # raises AssertionError where it fails

@@ -148,6 +148,12 @@ def test_parallel_api(make_env):
     parallel_api_test(env, num_cycles=15)
 
 
+def test_momalands_api_test(make_env):
+    api_test = pytest.importorskip("momaland.test.api_test").api_test
+    conversions = pytest.importorskip("momaland.utils.conversions")
+    api_test(conversions.mo_parallel_to_aec(make_env(num_seconds=60, seed=0)), num_cycles=15)
+
+
 def test_spaces(make_env):
     env = make_env()
     assert env.possible_agents == ["J1", "J2", "J3"]
