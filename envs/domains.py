@@ -49,6 +49,7 @@ def four_room() -> dict[str, Any]:
         "iterations": 10,
         "n_test_weights": 12,
         "validation_weights": 12,  # a new policy joins Π only if GPI does no worse with it on validation weights
+        "objectives": ["blue squares", "green triangles", "red circles"],  # objects collected, one reward each
         "value_episodes": 1,
         "eval_episodes": 1,
     }
@@ -106,7 +107,7 @@ def traffic() -> dict[str, Any]:
         "eval_episodes": 1,
         "eval_workers": 2,
         # for `sb3-sfgpi compare` and its plots
-        "objectives": ["vehicles", "pedestrians"],
+        "objectives": ["vehicle waiting", "pedestrian waiting"],  # rewards: decreases of the scaled waiting times
         "baselines": {"fixed-time": {"signal_control": "fixed-time"}, "actuated": {"signal_control": "actuated"}},
         "episode_metrics": [
             ["vehicle_waiting_time_mean", "mean vehicle waiting time [s]"],

@@ -364,7 +364,7 @@ class OLSCallback(BaseCallback):
         if self.verbose:
             print(
                 f"iteration {summary['iteration']}: |Π|={summary['n_policies']} CCS={summary['ccs_size']} "
-                f"mean w·return={summary['mean_return']:.4f} ({summary['wall_time']:.1f}s, "
+                f"mean w·return (discounted)={summary['mean_return']:.4f} ({summary['wall_time']:.1f}s, "
                 f"GPI evaluation {summary['eval_time']:.1f}s)"
             )
 

@@ -25,6 +25,14 @@ import numpy as np
 
 from sb3_sfgpi.run_directory import RunDirectory
 
+#: Axis labels of the summary metrics (one meaning of "w·return" everywhere: discounted, as the training curve).
+METRIC_LABELS = {
+    "mean_return": "w·(discounted return), mean",
+    "mean_return_undiscounted": "w·(undiscounted return), mean",
+    "expected_utility": "expected utility (discounted)",
+    "n_policies": "|Π|",
+    "ccs_size": "CCS size",
+}
 LABELS = {"ma-sfols": "MA-SFOLS + GPI", "random": "Random + GPI", "fixed": "fixed-weight learners"}
 
 
@@ -117,7 +125,7 @@ def plot_returns(
             ax.axhspan(low, high, color=line.get_color(), alpha=0.1)
     ax.set_xlabel("iteration")
     ax.xaxis.set_major_locator(_pyplot().MaxNLocator(integer=True))
-    ax.set_ylabel(metric.replace("_", " "))
+    ax.set_ylabel(METRIC_LABELS.get(metric, metric.replace("_", " ")))
     ax.set_title(title or "GPI over the policy set, mean over test weights and agents")
     ax.grid(alpha=0.3)
     ax.legend()

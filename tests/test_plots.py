@@ -83,7 +83,7 @@ def test_plot_returns_draws_the_mean_over_seeds_with_labelled_axes(tmp_path, fig
     assert_png(output)
     (figure,) = figures
     (ax,) = figure["axes"]
-    assert ax["xlabel"] == "iteration" and ax["ylabel"] == "mean return"
+    assert ax["xlabel"] == "iteration" and ax["ylabel"] == "w·(discounted return), mean"
     assert ax["title"] == "GPI over the policy set, mean over test weights and agents"
     assert ax["legend"] == ["MA-SFOLS + GPI (2 seeds)", "Random + GPI (1 seed)"]
     lines = dict(ax["lines"])

@@ -179,12 +179,12 @@ def summarize_row(result: EpisodeReturns, weights: Any, compare: dict[str, Any])
             a: {"discounted": result.mean_discounted(a).tolist(), "undiscounted": result.mean_undiscounted(a).tolist()}
             for a in agents
         },
-        "episode_metrics": _episode_metrics(result, compare["episode_metrics"]),
+        "episode_metrics": episode_metrics(result, compare["episode_metrics"]),
         "traces": _traces(result, compare["step_metrics"]),
     }
 
 
-def _episode_metrics(result: EpisodeReturns, metrics: list[list[str]]) -> dict[str, dict[str, float]]:
+def episode_metrics(result: EpisodeReturns, metrics: list[list[str]]) -> dict[str, dict[str, float]]:
     """Mean and std over episodes of each metric of the ``"episode"`` entry of the last infos."""
     summary = {}
     for key, _ in metrics:

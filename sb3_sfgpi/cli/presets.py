@@ -15,6 +15,11 @@ from typing import Any
 from sb3_sfgpi.cli.errors import UsageError
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
+#: What each entry of ``--w`` weighs in the shipped domains (``--help``).
+WEIGHT_HELP = (
+    "one per objective, in the domain's order (four-room: blue squares, green triangles, red circles collected; "
+    "traffic: vehicle waiting, pedestrian waiting)"
+)
 #: The settings of a run's ``run.json`` that the commands read to rebuild its env and learners.
 CLI_SETTINGS = ("domain", "env_kwargs", "learner_kwargs")
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
-from sb3_sfgpi.cli.presets import CLI_SETTINGS, DomainPreset, load_domain
+from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_domain
 from sb3_sfgpi.cli.values import check_weights, key_values
 from sb3_sfgpi.masfols import MASFOLS, SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
@@ -31,7 +31,7 @@ def add_parser(sub: Any) -> None:
         help="ma-sfols: OLS corner weights; random: Dirichlet(1) weights; fixed: every agent learns for --w from "
         "scratch (a priori scalarisation), in one iteration of iterations x steps-per-iteration steps",
     )
-    train.add_argument("--w", type=float, nargs="+", help="the preference weights of --algo fixed")
+    train.add_argument("--w", type=float, nargs="+", help=f"the preference weights of --algo fixed, {WEIGHT_HELP}")
     train.add_argument(
         "--budget-from",
         type=Path,
@@ -283,6 +283,6 @@ def _print_result(run_dir: RunDirectory, model: MASFOLS) -> None:
     last = model.history[-1]
     print(
         f"{run_dir}: {last['iteration'] + 1} iterations, |Π|={last['n_policies']}, CCS={last['ccs_size']}, "
-        f"mean w·return={last['mean_return']:.4f}, {last['wall_time']:.1f}s"
+        f"mean w·return (discounted)={last['mean_return']:.4f}, {last['wall_time']:.1f}s"
         + (" (OLS ended: the set is a CCS)" if model.callback.ended_by_schedule else "")
     )
