@@ -125,6 +125,8 @@ class MultiAgentRunner:
     :param learner_callback: builds a callback for each new learner (e.g. a checkpoint callback)
     :param tensorboard_log: directory of the TensorBoard logs (runner and learners), or None
     :param verbose: verbosity of the runner-level logger
+    :param log_interval: a learner writes its logs (TensorBoard, stdout) every ``log_interval`` of its episodes, as
+        in SB3's ``learn(log_interval=...)``, and at the end of its iteration
     """
 
     def __init__(
@@ -136,7 +138,11 @@ class MultiAgentRunner:
         learner_callback: Callable[[str], BaseCallback] | None = None,
         tensorboard_log: str | None = None,
         verbose: int = 0,
+        log_interval: int = 4,
     ):
+        if isinstance(log_interval, bool) or not isinstance(log_interval, int) or log_interval < 1:
+            raise ValueError(f"log_interval must be a positive integer, got {log_interval!r}")
+        self.log_interval = log_interval
         self.env = env = flattened(env)
         self.agents: list[str] = list(env.possible_agents)
         self._time_limit = time_limit(env)
@@ -343,6 +349,8 @@ class MultiAgentRunner:
         learner._on_step()
         if done:
             learner._episode_num += 1
+            if learner._episode_num % self.log_interval == 0:
+                learner.dump_logs()  # SB3's log_interval: a point of the learning curve
         if (
             learner.num_timesteps > learner.learning_starts
             and learner.num_timesteps % learner.train_freq.frequency == 0

@@ -206,3 +206,10 @@ def test_a_killed_iterations_logs_are_replaced_on_resume(tmp_path):
     assert not list(tensorboard.glob("*/events.out.tfevents.killed"))
     assert scalar_steps(tmp_path / "logs", "ols/iteration") == [0, 1, 2]
     assert scalar_steps(tmp_path / "logs", "ols/mean_return") == [0, 1, 2]
+
+
+def test_learners_log_their_learning_curve_during_the_iteration(tmp_path):
+    make(steps=300, weights="random", run_dir=tmp_path).learn(max_iterations=1)
+    steps = scalar_steps(tmp_path / "tensorboard" / "agent_0_iter000_1", "rollout/ep_rew_mean")
+    # chain episodes take a few steps: a point every 4 episodes (SB3's log_interval), not one at the end
+    assert len(steps) >= 5 and steps == sorted(steps) and steps[-1] <= 300
