@@ -107,7 +107,7 @@ def traffic() -> dict[str, Any]:
         "eval_episodes": 1,
         "eval_workers": 2,
         # for `sb3-sfgpi compare` and its plots
-        "objectives": ["vehicle waiting", "pedestrian waiting"],  # rewards: decreases of the scaled waiting times
+        "objectives": ["vehicles", "pedestrians"],  # rewards: decreases of their scaled waiting times
         "baselines": {"fixed-time": {"signal_control": "fixed-time"}, "actuated": {"signal_control": "actuated"}},
         "episode_metrics": [
             ["vehicle_waiting_time_mean", "mean vehicle waiting time [s]"],

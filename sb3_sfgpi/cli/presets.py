@@ -18,7 +18,7 @@ ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
 #: What each entry of ``--w`` weighs in the shipped domains (``--help``).
 WEIGHT_HELP = (
     "one per objective, in the domain's order (four-room: blue squares, green triangles, red circles collected; "
-    "traffic: vehicle waiting, pedestrian waiting)"
+    "traffic: vehicles, pedestrians, by their waiting times)"
 )
 #: The settings of a run's ``run.json`` that the commands read to rebuild its env and learners.
 CLI_SETTINGS = ("domain", "env_kwargs", "learner_kwargs")
