@@ -25,7 +25,7 @@ import numpy as np
 from sb3_sfgpi.cli.plot import a_priori_reference
 from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.weights import random_weights
-from sb3_sfgpi.plots import align_runs
+from sb3_sfgpi.plots import align_runs, ols_ended
 from sb3_sfgpi.run_directory import RunDirectory
 
 
@@ -92,10 +92,12 @@ def main() -> None:
     for algo in ("ma-sfols", "random"):
         algo_runs = [run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo]
         rows = [read_rows(run) for run in algo_runs]
-        curves = align_runs([{int(r["iteration"]) + 1: float(r["mean_return"]) for r in rs} for rs in rows])
-        # Runs whose OLS ended early keep their final set: carry the last value to the common length.
-        curves = np.pad(curves, ((0, 0), (0, max_iterations(runs) - curves.shape[1])), mode="edge")
-        mean, std = curves.mean(axis=0), curves.std(axis=0)
+        ended = [ols_ended(RunDirectory(run)) for run in algo_runs]
+        curves = align_runs([{int(r["iteration"]) + 1: float(r["mean_return"]) for r in rs} for rs in rows], ended)
+        # Runs whose OLS ended early keep their final set to the common length; others stop where they stopped.
+        pad = max_iterations(runs) - curves.shape[1]
+        curves = np.array([extend(row, pad, done) for row, done in zip(curves, ended, strict=True)])
+        mean, std = np.nanmean(curves, axis=0), np.nanstd(curves, axis=0)
         wall = np.mean([float(rs[-1]["wall_time"]) for rs in rows])
         cells = " | ".join(f"{m:.3f} ± {s:.3f}" for m, s in zip(mean, std, strict=True))
         print(f"| {algo} | {cells} | {first_within(mean)} | {wall:.0f} |")
@@ -118,6 +120,11 @@ def apriori_jobs(args: argparse.Namespace, extra: list[str]) -> list[tuple[int, 
         for seed in args.apriori_seeds
         for i, w in enumerate(weights)
     ]
+
+
+def extend(row: np.ndarray, pad: int, ols_ended: bool) -> np.ndarray:
+    """``row`` with ``pad`` more iterations: its last value where OLS ended (the set is complete), else NaN."""
+    return np.pad(row, (0, pad), mode="edge") if ols_ended else np.pad(row, (0, pad), constant_values=np.nan)
 
 
 def read_rows(run: Path) -> list[dict[str, str]]:

@@ -68,23 +68,42 @@ def _save(fig: Any, output: Path) -> Path:
     return output
 
 
-def align_runs(runs: list[dict[int, float]]) -> np.ndarray:
+def align_runs(runs: list[dict[int, float]], complete: Sequence[bool] | None = None) -> np.ndarray:
     """
-    One row per run over the union of their iterations; a run that stopped early (OLS ended: its set is
-    complete) keeps its last value.
+    One row per run over the union of their iterations. A run whose set is complete (OLS ended) keeps its last
+    value after its last iteration; one that stopped for another reason (interrupted, a smaller ``--iterations``)
+    is NaN there: it is not drawn as if it went on.
 
     :param runs: per run, iteration -> value
+    :param complete: per run, whether its set is complete (default: all are)
     :return: shape ``(n_runs, n_iterations)``
     """
     iterations = sorted(set().union(*runs))
+    complete = [True] * len(runs) if complete is None else list(complete)
     rows = []
-    for run in runs:
+    for run, carry in zip(runs, complete, strict=True):
         last, row = np.nan, []
         for i in iterations:
-            last = run.get(i, last)
+            last = run.get(i, last if carry else np.nan)
             row.append(last)
         rows.append(row)
     return np.array(rows)
+
+
+def ols_ended(run_dir: RunDirectory) -> bool:
+    """Whether a run's OLS ended (its last checkpoint has no next weights): its policy set is complete."""
+    return run_dir.has_checkpoint() and run_dir.read_checkpoint()["next_weights"] is None
+
+
+def _seeds_label(values: np.ndarray, iterations: list[int]) -> str:
+    """``"3 seeds"``, or ``"3 seeds, 2 from iteration 7"`` where some runs stop before the others."""
+    counts = (~np.isnan(values)).sum(axis=0)
+    n = int(counts.max())
+    label = f"{n} seed{'s' * (n > 1)}"
+    if (counts < n).any():
+        first = int(np.argmax(counts < n))
+        label += f", {int(counts[first:].min())} from iteration {iterations[first]}"
+    return label
 
 
 def plot_returns(
@@ -104,19 +123,21 @@ def plot_returns(
     :param references: horizontal lines (dashed, with a band of ± their std) in the metric's units
     """
     curves: dict[str, list[dict[int, float]]] = {}
+    ended: dict[str, list[bool]] = {}
     for algorithm, run_dir in runs:
         rows = run_dir.read_summary()
         curves.setdefault(algorithm, []).append(
             {int(row["iteration"]) + 1: float(row[metric]) for row in rows if row[metric] != ""}
         )
+        ended.setdefault(algorithm, []).append(ols_ended(run_dir))
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     for algorithm, values_by_run in sorted(curves.items()):
-        values = align_runs(values_by_run)
+        values = align_runs(values_by_run, ended[algorithm])
         iterations = sorted(set().union(*values_by_run))
-        mean, std = values.mean(axis=0), values.std(axis=0)
-        n = len(values_by_run)
-        ax.plot(iterations, mean, marker="o", label=f"{LABELS.get(algorithm, algorithm)} ({n} seed{'s' * (n > 1)})")
+        mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0)  # over the runs that got that far
+        label = f"{LABELS.get(algorithm, algorithm)} ({_seeds_label(values, iterations)})"
+        ax.plot(iterations, mean, marker="o", label=label)
         ax.fill_between(iterations, mean - std, mean + std, alpha=0.2)
     for reference in references:
         low, high = reference.mean - reference.std, reference.mean + reference.std

@@ -58,13 +58,15 @@ def summary_row(i: int, value: float, hypervolume: float | None = None) -> dict:
     }
 
 
-def write_run(path, mean_returns, hypervolumes=None) -> RunDirectory:
+def write_run(path, mean_returns, hypervolumes=None, ols_ended=True) -> RunDirectory:
     run_dir = RunDirectory(path)
     run_dir.write_config({"domain": "four-room", "algorithm": "ma-sfols"})
     history = [
         summary_row(i, value, None if hypervolumes is None else hypervolumes[i]) for i, value in enumerate(mean_returns)
     ]
-    run_dir.write_iteration(history, {"iteration": len(history), "timesteps": 0, "n_policies": 0})
+    next_weights = None if ols_ended else {"agent_0": [0.5, 0.5]}
+    checkpoint = {"iteration": len(history), "timesteps": 0, "n_policies": 0, "schedule": {"ols": {}}}
+    run_dir.write_iteration(history, {**checkpoint, "next_weights": next_weights})
     return run_dir
 
 
@@ -120,7 +122,10 @@ def write_fixed_run(path, w, seed, at_w, elsewhere=0.0) -> RunDirectory:
         {"weights": [1.0, 0.0], "agents": {"a": {"discounted": [elsewhere, 0.0]}, "b": {"discounted": [elsewhere, 0]}}},
         {"weights": w, "agents": {"a": {"discounted": at_w[0]}, "b": {"discounted": at_w[1]}}},
     ]
-    run_dir.write_iteration([{**summary_row(0, 0.0), "test": test}], {"iteration": 1, "timesteps": 0, "n_policies": 1})
+    run_dir.write_iteration(
+        [{**summary_row(0, 0.0), "test": test}],
+        {"iteration": 1, "timesteps": 0, "n_policies": 1, "schedule": {"ols": {}}},
+    )
     return run_dir
 
 
@@ -285,6 +290,18 @@ def test_comparison_plots_refuse_what_they_cannot_draw(tmp_path, compare):
     with pytest.raises(ValueError, match="no per-step 'queue'"):
         plots.plot_step_metrics(no_trace, tmp_path)
     assert not list(tmp_path.glob("*.png"))
+
+
+def test_a_seed_that_stopped_early_is_not_drawn_as_if_it_went_on(tmp_path, figures):
+    runs = [
+        ("ma-sfols", write_run(tmp_path / "a", [1.0, 2.0, 3.0])),
+        ("ma-sfols", write_run(tmp_path / "b", [3.0], ols_ended=False)),  # interrupted after iteration 1
+        ("ma-sfols", write_run(tmp_path / "c", [2.0, 5.0])),  # OLS ended: its set stays as it was
+    ]
+    plots.plot_returns(runs, tmp_path / "r.png")
+    (ax,) = figures[0]["axes"]
+    np.testing.assert_allclose(ax["lines"][0][1][:, 1], [2.0, 3.5, 4.0])  # b counts at iteration 1 only
+    assert ax["legend"] == ["MA-SFOLS + GPI (3 seeds, 2 from iteration 2)"]
 
 
 # --- align_runs and moving_average ------------------------------------------------------------------------------
