@@ -89,6 +89,7 @@ def main() -> None:
         + " | ".join(f"it {i}" for i in range(1, 1 + max_iterations(runs)))
         + " | 95% at | wall time (s) |"
     )
+    reference = a_priori_reference(apriori) if apriori else None
     for algo in ("ma-sfols", "random"):
         algo_runs = [run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo]
         rows = [read_rows(run) for run in algo_runs]
@@ -101,10 +102,9 @@ def main() -> None:
         wall = np.mean([float(rs[-1]["wall_time"]) for rs in rows])
         cells = " | ".join(f"{m:.3f} ± {s:.3f}" for m, s in zip(mean, std, strict=True))
         print(f"| {algo} | {cells} | {first_within(mean)} | {wall:.0f} |")
-        if apriori:
-            print(f"  final / a priori: {mean[-1] / a_priori_reference(apriori).mean:.3f}")
-    if apriori:
-        reference = a_priori_reference(apriori)
+        if reference is not None:
+            print(f"  final / a priori: {mean[-1] / reference.mean:.3f}")
+    if reference is not None:
         print(f"{reference.label}: {reference.mean:.3f} ± {reference.std:.3f}")
 
 
