@@ -72,6 +72,10 @@ def traffic() -> dict[str, Any]:
 
     Values are estimated with each new policy run at all three intersections (``value_mode="shared"``) and GPI
     acts over the policies whose values form the CCS (``gpi_set="ccs"``): dominated policies' SFs only mislead it.
+
+    Another network: ``--env net_file=NET --env route_file=ROUTES`` (and ``--env 'objectives=["vehicle_waiting",
+    "co2"]'`` where it has no pedestrian crossings); MA-SFOLS needs lights with the same observation and action
+    spaces (the same lanes and green phases).
     """
     from sfgpi_envs.traffic import TrafficSignalEnv
 
@@ -82,7 +86,9 @@ def traffic() -> dict[str, Any]:
             "delta_time": 5,
             "min_green": 10,
             "max_green": 50,
-            "reward_scale": [0.01, 0.25],  # vehicles, pedestrians: see above
+            # vehicles, pedestrians: see above; the other objectives of the menu (chosen with `--env objectives=[...]`)
+            # scaled to per-step rewards of the order of the vehicles' on the default network under random actions
+            "reward_scale": {"vehicle_waiting": 0.01, "pedestrian_waiting": 0.25, "vehicle_queue": 0.1, "co2": 0.005},
         },
         "learner_kwargs": {
             "policy": "MlpPolicy",

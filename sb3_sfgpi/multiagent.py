@@ -165,13 +165,14 @@ class MultiAgentRunner:
 
     def _check_homogeneous(self) -> None:
         first = self.views[self.agents[0]]
-        for view in self.views.values():
-            if (view.observation_space, view.action_space, view.reward_space) != (
-                first.observation_space,
-                first.action_space,
-                first.reward_space,
-            ):
-                raise ValueError("MA-SFOLS shares policies between agents: all agents need the same spaces")
+        for agent, view in self.views.items():
+            for kind in ("observation_space", "action_space", "reward_space"):
+                if getattr(view, kind) != getattr(first, kind):
+                    raise ValueError(
+                        f"MA-SFOLS shares policies between agents: all agents need the same spaces, but the "
+                        f"{kind.replace('_', ' ')} of {agent!r} is {getattr(view, kind)} and of {self.agents[0]!r} "
+                        f"{getattr(first, kind)}"
+                    )
             if not isinstance(view.action_space, spaces.Discrete):
                 raise ValueError(f"SFDQN needs Discrete actions, got {view.action_space}")
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -107,3 +107,18 @@ def make_random_tabular() -> Callable[..., TabularSFNetwork]:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)
+
+
+@pytest.fixture
+def listen() -> Iterator[Callable[[Any, Any], Any]]:
+    """``listen(api, listener)`` adds a SUMO step listener and removes it at teardown: libsumo keeps listeners from
+    one simulation to the next in the process, where they would read lanes another test's network lacks."""
+    added = []
+
+    def add(api: Any, listener: Any) -> Any:
+        added.append((api, api.addStepListener(listener)))
+        return listener
+
+    yield add
+    for api, listener_id in added:
+        api.removeStepListener(listener_id)

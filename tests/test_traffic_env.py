@@ -195,12 +195,12 @@ def test_observations_in_unit_box_and_episode_end(make_env):
 
 
 @pytest.mark.parametrize("backend", ["libsumo", "traci"])
-def test_reward_is_change_of_waiting_times(make_env, backend):
+def test_reward_is_change_of_waiting_times(make_env, listen, backend):
     env = make_env(seed=2, backend=backend, num_seconds=200 if backend == "libsumo" else 160)
     env.reset()
     api = env.sim.api
     rec = WaitingRecorder(api, env.possible_agents)
-    api.addStepListener(rec)
+    listen(api, rec)
     prev = {j: (0.0, 0.0) for j in env.possible_agents}  # empty network at t = 0
     rng = np.random.default_rng(3)
     seen_v = seen_p = 0.0
@@ -230,11 +230,11 @@ def test_reward_is_change_of_waiting_times(make_env, backend):
         ("always_change", {"delta_time": 4, "yellow_time": 2, "min_green": 5, "max_green": 9}),
     ],
 )
-def test_min_max_green_and_yellow(make_env, policy, kwargs):
+def test_min_max_green_and_yellow(make_env, listen, policy, kwargs):
     env = make_env(seed=4, num_seconds=200, **kwargs)
     env.reset()
     rec = PhaseRecorder(env.sim.api, env.possible_agents)
-    env.sim.api.addStepListener(rec)
+    listen(env.sim.api, rec)
     rng = np.random.default_rng(5)
     while env.agents:
         if policy == "random":
@@ -261,22 +261,22 @@ def test_min_max_green_and_yellow(make_env, policy, kwargs):
             assert all(min_g <= g < min_g + env.delta_time for g in greens), greens
 
 
-def test_static_program_does_not_advance(make_env):
+def test_static_program_does_not_advance(make_env, listen):
     env = make_env(seed=0, max_green=1000)
     env.reset()
     rec = PhaseRecorder(env.sim.api, env.possible_agents)
-    env.sim.api.addStepListener(rec)
+    listen(env.sim.api, rec)
     while env.agents:
         env.step(dict.fromkeys(env.agents, 0))
     for seq in rec.states.values():
         assert set(seq) == {"GGrrG"}  # the static program would have switched after 30 s
 
 
-def test_fixed_time_mode_runs_the_static_program(make_env):
+def test_fixed_time_mode_runs_the_static_program(make_env, listen):
     env = make_env(seed=0, signal_control="fixed-time", num_seconds=100)
     env.reset()
     rec = PhaseRecorder(env.sim.api, env.possible_agents)
-    env.sim.api.addStepListener(rec)
+    listen(env.sim.api, rec)
     while env.agents:
         obs, *_ = env.step(dict.fromkeys(env.agents, 1))  # ignored
     for j, seq in rec.states.items():

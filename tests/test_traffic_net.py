@@ -8,7 +8,14 @@ import sys
 import xml.etree.ElementTree as ET
 
 import pytest
-from sfgpi_envs.traffic import ACTUATED_FILE, NET_FILE, NETS_DIR, ROUTE_FILE, SignalProgram, read_network
+from sfgpi_envs.traffic import (
+    NET_FILE,
+    NETS_DIR,
+    ROUTE_FILE,
+    SignalProgram,
+    read_network,
+    write_actuated_programs,
+)
 from sfgpi_envs.traffic.scenario import trim_demand
 
 BUILD_SCRIPT = NETS_DIR / "build.py"
@@ -74,14 +81,19 @@ def test_layout_and_programs():
         assert prog.yellows == ("yyrrr", "rryyr")
 
 
-def test_actuated_programs_match_static_phases():
-    root = ET.parse(ACTUATED_FILE).getroot()
-    logics = list(root.iter("tlLogic"))
+def test_actuated_programs_follow_the_static_phases(tmp_path):
+    path = write_actuated_programs(read_network(NET_FILE).values(), 10, 50, tmp_path / "a.add.xml")
+    logics = list(ET.parse(path).getroot().iter("tlLogic"))
     assert {lg.get("id") for lg in logics} == {"J1", "J2", "J3"}
     for lg in logics:
-        assert lg.get("type") == "actuated"
-        prog = SignalProgram.from_phases([p.get("state") for p in lg.iter("phase")], lg.get("id"))
-        assert prog.greens == ("GGrrG", "rrGGr")
+        assert (lg.get("type"), lg.get("programID")) == ("actuated", "actuated")
+        phases = [(p.get("state"), p.get("duration"), p.get("minDur"), p.get("maxDur")) for p in lg.iter("phase")]
+        assert phases == [
+            ("GGrrG", "30", "10", "50"),
+            ("yyrrr", "3", None, None),
+            ("rrGGr", "30", "10", "50"),
+            ("rryyr", "3", None, None),
+        ]
 
 
 def test_demand():
@@ -102,8 +114,12 @@ def test_trim_demand(tmp_path):
     assert trim_demand(out, 500, tmp_path) == out  # nothing to cut: the file itself
 
 
-def test_programs_need_two_greens():
-    with pytest.raises(ValueError, match="exactly 2 green phases"):
-        SignalProgram.from_phases(["GGrr", "yyrr", "rrGG", "rryy", "GrGr", "yryr"], "X")
+def test_programs_need_two_greens_and_take_more():
+    with pytest.raises(ValueError, match="at least 2 green phases"):
+        SignalProgram.from_phases(["GGrr", "yyrr", "rrrr"], "X")
+    three = SignalProgram.from_phases(["GGrr", "yyrr", "rrGG", "rryy", "GrGr", "yryr"], "X")
+    assert three.greens == ("GGrr", "rrGG", "GrGr") and three.yellows == ("yyrr", "rryy", "yryr")
+    assert three.transition(0, 1) == "yyrr"  # the program's yellow
+    assert three.transition(0, 2) == "Gyrr"  # derived: links green now and red next turn yellow
     derived = SignalProgram.from_phases(["GGrrG", "rrGGr"], "X")  # no yellow phases: derived
     assert derived.yellows == ("yyrry", "rryyr")

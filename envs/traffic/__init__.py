@@ -2,35 +2,38 @@
 
 Public names:
 
-* :class:`TrafficSignalEnv` -- the ``ParallelEnv`` (one keep/change agent per traffic light, rewards
-  ``[vehicle, pedestrian]`` waiting-time decrease);
+* :class:`TrafficSignalEnv` -- the ``ParallelEnv`` on any SUMO network with traffic lights (one agent per light,
+  rewards from :data:`OBJECTIVE_MENU`, by default ``[vehicle, pedestrian]`` waiting-time decrease);
 * :func:`run_program_episode` -- fixed-time / actuated baselines with the same metrics;
-* :data:`NET_FILE`, :data:`ROUTE_FILE`, :data:`ACTUATED_FILE` -- the three-intersection scenario;
+* :data:`NET_FILE`, :data:`ROUTE_FILE` -- the three-intersection scenario;
 * :class:`SumoNotFoundError`, :class:`SumoLoadError` -- installation and loading errors.
 
 The network is built from the XML sources in ``nets/`` by ``nets/build.py``.
 """
 
 from .baselines import PROGRAMS, run_program_episode
-from .env import EPISODE_METRIC_KEYS, OBJECTIVES, REWARD_DIM, SIGNAL_CONTROLS, TrafficSignalEnv
-from .scenario import ACTUATED_FILE, NET_FILE, NETS_DIR, ROUTE_FILE
+from .env import ACTION_MODES, EPISODE_METRIC_KEYS, SIGNAL_CONTROLS, TrafficSignalEnv
+from .objectives import DEFAULT_OBJECTIVES, Objective
+from .objectives import MENU as OBJECTIVE_MENU
+from .scenario import NET_FILE, NETS_DIR, ROUTE_FILE, write_actuated_programs
 from .signals import CHANGE, KEEP, SignalController, SignalProgram
 from .sumo_backend import SumoLoadError, SumoNotFoundError, SumoSimulation
 from .topology import IntersectionLayout, read_network
 
 __all__ = [
-    "ACTUATED_FILE",
+    "ACTION_MODES",
     "CHANGE",
+    "DEFAULT_OBJECTIVES",
     "EPISODE_METRIC_KEYS",
     "KEEP",
     "NETS_DIR",
     "NET_FILE",
-    "OBJECTIVES",
+    "OBJECTIVE_MENU",
     "PROGRAMS",
-    "REWARD_DIM",
     "ROUTE_FILE",
     "SIGNAL_CONTROLS",
     "IntersectionLayout",
+    "Objective",
     "SignalController",
     "SignalProgram",
     "SumoLoadError",
@@ -39,4 +42,5 @@ __all__ = [
     "TrafficSignalEnv",
     "read_network",
     "run_program_episode",
+    "write_actuated_programs",
 ]

@@ -1,13 +1,17 @@
 """Multi-objective traffic-signal control with pedestrians as a PettingZoo ``ParallelEnv`` (paper Sec. 5.2).
 
 One agent per traffic light (agent id = traffic-light id). Every ``delta_time`` simulated seconds each
-agent observes its intersection (Eq. 22), chooses *keep* (0) or *change* (1), and receives the vector
-reward (Eq. 23)::
+agent observes its intersection (Eq. 22), chooses *keep* (0) or *change* (1) (or, with
+``action_mode="phase"``, the green phase to show), and receives the vector reward (Eq. 23)::
 
     r_t = [W^v_t - W^v_{t+1},  W^p_t - W^p_{t+1}]
 
 where ``W^v`` / ``W^p`` are the cumulative waiting times of the vehicles on its incoming lanes and of
-the pedestrians waiting to cross (Eqs. 24-25, see :mod:`.monitor`).
+the pedestrians waiting to cross (Eqs. 24-25, see :mod:`.monitor`). Other objectives (queue, CO2) come
+from a menu (:mod:`.objectives`): ``objectives=[...]`` chooses them and their order.
+
+Any SUMO network with traffic lights runs (``net_file``, ``route_file``): the lights, their incoming
+lanes and their green phases are read from the network file.
 
 SUMO runs in-process through libsumo (default), or through TraCI (``backend="traci"``; ``gui=True``
 opens sumo-gui). The environment advances SUMO one second at a time and drives the lights itself
@@ -39,20 +43,18 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .monitor import IntersectionMonitor
-from .scenario import ACTUATED_FILE, NET_FILE, ROUTE_FILE, trim_demand
-from .signals import KEEP, SignalController, SignalProgram
+from .monitor import IntersectionMonitor, Measurement
+from .objectives import DEFAULT_OBJECTIVES, reward_scales, select_objectives
+from .scenario import NET_FILE, ROUTE_FILE, trim_demand, write_actuated_programs
+from .signals import SignalController, SignalProgram, is_green
 from .sumo_backend import SumoSimulation
 from .topology import IntersectionLayout, read_network
 
 SIGNAL_CONTROLS = ("agent", "fixed-time", "actuated")
 """Who drives the lights: the agents, SUMO's static program, or SUMO's actuated program."""
 
-REWARD_DIM = 2
-"""Objectives: 0 = vehicle waiting time, 1 = pedestrian waiting time."""
-
-OBJECTIVES = ("vehicle_waiting_time", "pedestrian_waiting_time")
-"""Names of the reward components, in order."""
+ACTION_MODES = ("change", "phase")
+"""What an action says: keep (0) / change to the next green (1), or the index of the green to show."""
 
 EPISODE_METRIC_KEYS = (
     "vehicle_waiting_time_total",
@@ -74,70 +76,69 @@ def _check_int(name: str, value: Any, low: int) -> int:
     return int(value)
 
 
-def _check_scale(value: Any) -> tuple[float, float]:
-    """``reward_scale`` as one positive finite factor per objective."""
-    values = list(value) if isinstance(value, (list, tuple, np.ndarray)) else [value] * REWARD_DIM
-    ok = len(values) == REWARD_DIM and all(
-        not isinstance(v, bool) and isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0 for v in values
-    )
-    if not ok:
-        raise ValueError(
-            f"reward_scale must be a positive finite number or {REWARD_DIM} of them (vehicles, pedestrians), "
-            f"got {value!r}"
-        )
-    return float(values[0]), float(values[1])
-
-
 class TrafficSignalEnv(ParallelEnv):
-    """Traffic lights with vehicles and pedestrians, one keep/change agent per light, vector rewards.
+    """Traffic lights with vehicles and pedestrians, one agent per light, vector rewards.
 
     Observation of an agent (float32, all entries in [0, 1]), Eq. 22::
 
-        [rho_0, rho_1, tau, density_1 .. density_L, queue_1 .. queue_L]
+        [rho_0 .. rho_{G-1}, tau, density_1 .. density_L, queue_1 .. queue_L]
 
-    * ``rho``: one-hot of the green phase shown (during yellow: the green that comes next);
-      phase 0 = N-S vehicles + pedestrians, phase 1 = W-E vehicles in the default network;
+    * ``rho``: one-hot of the green phase shown (during yellow: the green that comes next), over the
+      ``G`` green phases of the light's static program; in the default network phase 0 = N-S vehicles
+      + pedestrians, phase 1 = W-E vehicles;
     * ``tau``: elapsed green time / ``max_green`` (0 during yellow);
     * for each incoming lane ``l`` -- the controlled vehicle lanes, then the incoming sidewalk and the
       waiting area in front of the crossing -- number of vehicles/persons (density) and of queued ones
       (vehicles below 0.1 m/s, persons standing) divided by the lane's capacity, clipped to 1.
 
-    Actions: ``Discrete(2)``: 0 keep, 1 change. A change before ``min_green`` seconds of green is
-    ignored; a green is ended after ``max_green`` seconds whatever the action; a change shows the
-    yellow state for ``yellow_time`` seconds, during which actions are ignored.
+    Actions (``action_mode="change"``, the paper's): ``Discrete(2)``, 0 keep, 1 change to the next green
+    of the cycle; (``"phase"``, sumo-rl's): ``Discrete(G)``, the green to show. A change before
+    ``min_green`` seconds of green is ignored; a green is ended after ``max_green`` seconds whatever the
+    action (the next green of the cycle follows); a change shows a yellow state for ``yellow_time``
+    seconds (the program's, or links green now and red next turn yellow), during which actions are ignored.
 
-    Rewards: ``float32`` arrays of shape ``(2,)`` (vehicles, pedestrians), in seconds times
-    ``reward_scale`` (per objective).
+    Rewards: ``float32`` arrays of shape ``(d,)``, one component per objective of ``objectives``
+    (default: vehicles, pedestrians, in seconds), times ``reward_scale`` (per objective).
 
     Infos (every step, per agent): ``vehicle_wait_total`` (``W^v``), ``vehicle_wait_mean`` (per
     incoming vehicle), ``pedestrian_wait_total`` (``W^p``), ``pedestrian_wait_mean`` (per person on
     the approach), ``vehicles_incoming``, ``pedestrians_incoming``, ``green_phase``, ``yellow`` and
-    ``time``. At the last step every agent's info also holds ``"episode"``: :meth:`episode_metrics`.
+    ``time``, ``vehicles_halting`` and, with the ``"co2"`` objective, ``co2_g`` (emitted on the incoming
+    lanes so far). At the last step every agent's info also holds ``"episode"``: :meth:`episode_metrics`.
 
-    The episode ends by truncation (time limit) after ``num_seconds`` simulated seconds.
+    The episode ends by truncation (time limit) after ``num_seconds`` simulated seconds (from ``begin_time``).
 
-    :param net_file: SUMO network (default: the three-intersection scenario).
+    :param net_file: SUMO network (default: the three-intersection scenario); every traffic light with at
+        least two green phases in its static program becomes an agent (the others run their program).
     :param route_file: SUMO demand (flows are cut at ``num_seconds`` in a temporary copy, because
         SUMO creates every person of a ``personFlow`` when it loads the file).
     :param num_seconds: episode length [s].
+    :param begin_time: simulation time the episode starts at [s] (networks whose demand starts later, as
+        RESCO's, need it).
     :param delta_time: simulated seconds between two decisions.
     :param yellow_time: duration of the yellow phase between two greens [s].
     :param min_green: minimum green time [s].
     :param max_green: maximum green time [s] (also the normaliser of ``tau``).
+    :param objectives: names from :data:`~.objectives.MENU`, one reward component each, in order
+        (``"pedestrian_waiting"`` needs a network with signalised crossings).
+    :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green).
     :param signal_control: ``"agent"`` (actions drive the lights), ``"fixed-time"`` (SUMO's static
-        program in the network) or ``"actuated"`` (SUMO's actuated program from
-        ``actuated_file``); in the last two cases actions are ignored.
+        program in the network) or ``"actuated"`` (SUMO's gap-based actuated program: the static
+        program's phases, greens between ``min_green`` and ``max_green``, or ``actuated_file``);
+        in the last two cases actions are ignored.
     :param backend: ``"libsumo"`` (in-process, fast; one live simulation per process) or ``"traci"``;
         default: libsumo, or traci when ``gui`` is set.
     :param gui: show the simulation in sumo-gui (TraCI backend).
     :param seed: seed of SUMO (``--seed``) for the first episode and of the seeds of the later ones;
         ``reset(seed=...)`` overrides it.
-    :param actuated_file: additional file with the actuated programs (``signal_control="actuated"``).
+    :param actuated_file: additional file with the actuated programs (``signal_control="actuated"``),
+        replacing the ones derived from the static programs.
     :param additional_files: further SUMO additional files.
     :param sumo_args: further SUMO command-line options.
     :param sumo_warnings: let SUMO print its warnings (e.g. jammed pedestrians).
-    :param reward_scale: factor applied to the rewards: one number for both components, or one per
-        component ``(vehicles, pedestrians)``; default 1 (seconds). Learners with neural networks train
+    :param reward_scale: factor applied to the rewards: one number for all components, one per
+        component, or a mapping objective name -> factor (others keep 1); default 1 (the units of
+        :mod:`.objectives`). Learners with neural networks train
         better on rewards of order one (the per-step changes are tens of seconds), and per-objective factors
         set the units the preference weights trade (see the ``traffic`` domain preset). Infos and
         :meth:`episode_metrics` stay in seconds.
@@ -155,19 +156,22 @@ class TrafficSignalEnv(ParallelEnv):
         route_file: str | os.PathLike[str] = ROUTE_FILE,
         *,
         num_seconds: int = 500,
+        begin_time: int = 0,
         delta_time: int = 5,
         yellow_time: int = 3,
         min_green: int = 10,
         max_green: int = 50,
+        objectives: Sequence[str] = DEFAULT_OBJECTIVES,
+        action_mode: str = "change",
         signal_control: str = "agent",
         backend: str | None = None,
         gui: bool = False,
         seed: int | None = None,
-        actuated_file: str | os.PathLike[str] = ACTUATED_FILE,
+        actuated_file: str | os.PathLike[str] | None = None,
         additional_files: Sequence[str | os.PathLike[str]] = (),
         sumo_args: Sequence[str] = (),
         sumo_warnings: bool = False,
-        reward_scale: float | Sequence[float] = 1.0,
+        reward_scale: float | Sequence[float] | Mapping[str, float] = 1.0,
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
@@ -176,13 +180,21 @@ class TrafficSignalEnv(ParallelEnv):
         if signal_control not in SIGNAL_CONTROLS:
             raise ValueError(f"signal_control must be one of {SIGNAL_CONTROLS}, got {signal_control!r}")
         self.num_seconds = _check_int("num_seconds", num_seconds, 1)
+        self.begin_time = _check_int("begin_time", begin_time, 0)
+        self._end = self.begin_time + self.num_seconds
         self.delta_time = _check_int("delta_time", delta_time, 1)
         self.yellow_time = _check_int("yellow_time", yellow_time, 1)
         self.min_green = _check_int("min_green", min_green, 0)
         self.max_green = _check_int("max_green", max_green, 1)
         if self.min_green > self.max_green:
             raise ValueError(f"min_green ({min_green}) must not exceed max_green ({max_green})")
-        self.reward_scale = _check_scale(reward_scale)
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+        self.objectives = select_objectives(objectives)
+        self.objective_names = tuple(o.name for o in self.objectives)
+        """The reward components' names, in order."""
+        self.reward_scale = reward_scales(reward_scale, self.objective_names)
+        self.action_mode = action_mode
         self.signal_control = signal_control
         self.render_mode = render_mode
         gui = gui or render_mode == "human"
@@ -194,8 +206,9 @@ class TrafficSignalEnv(ParallelEnv):
         if not self.route_file.is_file():
             raise FileNotFoundError(f"route file {self.route_file} does not exist")
         extra = [Path(f).resolve() for f in additional_files]
-        if signal_control == "actuated":
-            extra.insert(0, Path(actuated_file).resolve())
+        self.actuated_file = None if actuated_file is None else Path(actuated_file).resolve()
+        if signal_control == "actuated" and self.actuated_file is not None:
+            extra.insert(0, self.actuated_file)
         for f in extra:
             if not f.is_file():
                 raise FileNotFoundError(f"additional file {f} does not exist")
@@ -203,18 +216,28 @@ class TrafficSignalEnv(ParallelEnv):
         self.sumo_args = tuple(str(a) for a in sumo_args)
         self.sumo_warnings = sumo_warnings
 
-        self.layouts: dict[str, IntersectionLayout] = read_network(self.net_file)
+        self.layouts: dict[str, IntersectionLayout] = {
+            tid: lay for tid, lay in read_network(self.net_file).items() if sum(map(is_green, dict(lay.phases))) > 1
+        }
+        if not self.layouts:
+            raise ValueError(f"network file {self.net_file}: no traffic light has two green phases to choose from")
         self._programs = {
             tid: SignalProgram.from_phases([s for s, _ in lay.phases], tid) for tid, lay in self.layouts.items()
         }
+        self._check_objectives()
         self.possible_agents: list[str] = list(self.layouts)
         self.agents: list[str] = []
+        n_greens = {a: len(self._programs[a].greens) for a in self.possible_agents}
         self.observation_spaces = {
-            a: spaces.Box(0.0, 1.0, shape=(3 + 2 * lay.n_lanes,), dtype=np.float32) for a, lay in self.layouts.items()
+            a: spaces.Box(0.0, 1.0, shape=(n_greens[a] + 1 + 2 * lay.n_lanes,), dtype=np.float32)
+            for a, lay in self.layouts.items()
         }
-        self.action_spaces = {a: spaces.Discrete(2) for a in self.possible_agents}
+        self.action_spaces = {
+            a: spaces.Discrete(2 if action_mode == "change" else n_greens[a]) for a in self.possible_agents
+        }
+        d = len(self.objectives)
         self.reward_spaces = {
-            a: spaces.Box(-np.inf, np.inf, shape=(REWARD_DIM,), dtype=np.float32) for a in self.possible_agents
+            a: spaces.Box(-np.inf, np.inf, shape=(d,), dtype=np.float32) for a in self.possible_agents
         }
 
         self._sim = SumoSimulation(self.backend, gui)  # checks that SUMO is installed; starts nothing
@@ -231,10 +254,19 @@ class TrafficSignalEnv(ParallelEnv):
         ]
         self._lookups = [self._programs[a].lookup() for a in self.possible_agents]
         self._time = 0
-        self._last: list[tuple[float, int, float, int]] = []
+        self._last: list[Measurement] = []
         self._counts = [0, 0, 0, 0]  # departed vehicles, arrived vehicles, departed persons, arrived persons
         self.sumo_seed: int | None = None
         """SUMO seed of the current episode."""
+
+    def _check_objectives(self) -> None:
+        if any(o.needs_pedestrians for o in self.objectives) and not any(
+            lay.waiting_areas for lay in self.layouts.values()
+        ):
+            raise ValueError(
+                f"objective 'pedestrian_waiting' needs signalised pedestrian crossings; the network {self.net_file} "
+                "has none at any traffic light"
+            )
 
     # ------------------------------------------------------------------------------------- spaces
     def observation_space(self, agent: str) -> spaces.Box:
@@ -242,11 +274,11 @@ class TrafficSignalEnv(ParallelEnv):
         return self.observation_spaces[agent]
 
     def action_space(self, agent: str) -> spaces.Discrete:
-        """Action space of ``agent``: ``Discrete(2)`` (0 keep, 1 change)."""
+        """Action space of ``agent``: ``Discrete(2)`` (0 keep, 1 change) or ``Discrete(G)`` (the green to show)."""
         return self.action_spaces[agent]
 
     def reward_space(self, agent: str) -> spaces.Box:
-        """Reward space of ``agent``: ``Box(-inf, inf, (2,), float32)`` (vehicles, pedestrians)."""
+        """Reward space of ``agent``: ``Box(-inf, inf, (d,), float32)``, one component per objective."""
         return self.reward_spaces[agent]
 
     @property
@@ -260,13 +292,25 @@ class TrafficSignalEnv(ParallelEnv):
         return self._time
 
     # -------------------------------------------------------------------------------------- reset
+    def _workdir(self) -> str:
+        if self._tmpdir is None:
+            self._tmpdir = tempfile.mkdtemp(prefix="sfgpi_traffic_")
+            self._finalizer = weakref.finalize(self, shutil.rmtree, self._tmpdir, True)
+        return self._tmpdir
+
     def _episode_route_file(self) -> Path:
         if self._route_for_episode is None:
-            if self._tmpdir is None:
-                self._tmpdir = tempfile.mkdtemp(prefix="sfgpi_traffic_")
-                self._finalizer = weakref.finalize(self, shutil.rmtree, self._tmpdir, True)
-            self._route_for_episode = trim_demand(self.route_file, self.num_seconds, self._tmpdir)
+            self._route_for_episode = trim_demand(self.route_file, self._end, self._workdir())
         return self._route_for_episode
+
+    def _additional_files(self) -> list[Path]:
+        files = list(self.additional_files)
+        if self.signal_control == "actuated" and self.actuated_file is None:
+            path = Path(self._workdir()) / "actuated.add.xml"
+            if not path.is_file():
+                write_actuated_programs(self.layouts.values(), self.min_green, self.max_green, path)
+            files.insert(0, path)
+        return files
 
     def sumo_command(self, seed: int) -> list[str]:
         """SUMO options of an episode (without the executable).
@@ -278,14 +322,15 @@ class TrafficSignalEnv(ParallelEnv):
             "--net-file", str(self.net_file),
             "--route-files", str(self._episode_route_file()),
             "--seed", str(int(seed)),
-            "--begin", "0",
+            "--begin", str(self.begin_time),
             "--step-length", "1",
             "--waiting-time-memory", str(max(self.num_seconds, 100)),
             "--no-step-log", "true",
             "--duration-log.disable", "true",
         ]
-        if self.additional_files:
-            args += ["--additional-files", ",".join(str(f) for f in self.additional_files)]
+        additional = self._additional_files()
+        if additional:
+            args += ["--additional-files", ",".join(str(f) for f in additional)]
         if not self.sumo_warnings:
             args += ["--no-warnings", "true"]
         return args + list(self.sumo_args)
@@ -343,7 +388,8 @@ class TrafficSignalEnv(ParallelEnv):
         sim = api.simulation
         self._counters = (sim.getDepartedNumber, sim.getArrivedNumber, sim.getDepartedPersonNumber,
                           sim.getArrivedPersonNumber)
-        self._monitors = [IntersectionMonitor(api, self.layouts[a]) for a in self.possible_agents]
+        emissions = "co2" in self.objective_names
+        self._monitors = [IntersectionMonitor(api, self.layouts[a], emissions=emissions) for a in self.possible_agents]
 
     def _active_program(self, tls: str) -> SignalProgram:
         tl = self._api.trafficlight
@@ -365,27 +411,27 @@ class TrafficSignalEnv(ParallelEnv):
     ]:
         """Apply the agents' actions and simulate ``delta_time`` seconds.
 
-        :param actions: action (0 keep / 1 change) per agent; missing agents keep.
+        :param actions: action per agent (0 keep / 1 change, or the green to show); missing agents keep.
         :return: observations, vector rewards, terminations, truncations, infos.
         :raises RuntimeError: if the episode is over or was never started, or SUMO died during the step.
-        :raises ValueError: for an action outside {0, 1}.
+        :raises ValueError: for an action outside the agent's action space.
         """
         if not self.agents:
             raise RuntimeError("no episode is running: call reset() first")
         agent_mode = self.signal_control == "agent"
         time = self._time
         if agent_mode:
-            acts = [actions.get(a, KEEP) for a in self.possible_agents]
-            for a, act in zip(self.possible_agents, acts, strict=True):
-                if act not in (0, 1):
-                    raise ValueError(f"action of {a} must be 0 (keep) or 1 (change), got {act!r}")
+            greens = [
+                self._requested_green(a, ctl, actions)
+                for a, ctl in zip(self.possible_agents, self._controllers, strict=True)
+            ]
         try:
             if agent_mode:
-                for a, ctl, act in zip(self.possible_agents, self._controllers, acts, strict=True):
-                    state = ctl.act(int(act), time)
+                for a, ctl, green in zip(self.possible_agents, self._controllers, greens, strict=True):
+                    state = ctl.request(green, time)
                     if state is not None:
                         self._set_state(a, state)
-            n = min(self.delta_time, self.num_seconds - time)
+            n = min(self.delta_time, self._end - time)
             sim_step = self._simulation_step
             monitors = self._monitors
             controllers = self._controllers if agent_mode else ()
@@ -409,12 +455,12 @@ class TrafficSignalEnv(ParallelEnv):
         except self._sim.errors as exc:
             self._died(exc)
         rewards = {}
-        scale_v, scale_p = self.reward_scale
+        objectives, scale = self.objectives, self.reward_scale
         for i, a in enumerate(agents):
             prev, cur = self._last[i], measures[i]
-            rewards[a] = np.array(((prev[0] - cur[0]) * scale_v, (prev[2] - cur[2]) * scale_p), dtype=np.float32)
+            rewards[a] = (np.array([o.reward(prev, cur) for o in objectives]) * scale).astype(np.float32)
         self._last = measures
-        done = time >= self.num_seconds
+        done = time >= self._end
         terminations = dict.fromkeys(agents, False)
         truncations = dict.fromkeys(agents, done)
         infos = {a: self._info(i) for i, a in enumerate(agents)}
@@ -424,6 +470,22 @@ class TrafficSignalEnv(ParallelEnv):
                 infos[a]["episode"] = dict(metrics)
             self.agents = []
         return obs, rewards, terminations, truncations, infos
+
+    def _requested_green(self, agent: str, controller: SignalController, actions: Mapping[str, Any]) -> int:
+        """The green ``agent``'s action asks for (the current one when it has no action)."""
+        if agent not in actions:
+            return controller.green
+        act, n = actions[agent], self.action_spaces[agent].n
+        try:
+            k = int(act)
+        except (TypeError, ValueError):
+            k = -1
+        if k != act or not 0 <= k < n:
+            meaning = "0 (keep) or 1 (change)" if self.action_mode == "change" else f"a green phase in 0..{n - 1}"
+            raise ValueError(f"action of {agent} must be {meaning}, got {act!r}")
+        if self.action_mode == "phase":
+            return k
+        return (controller.green + 1) % len(controller.program.greens) if k else controller.green
 
     def _died(self, exc: BaseException) -> NoReturn:
         time = self._time
@@ -447,28 +509,33 @@ class TrafficSignalEnv(ParallelEnv):
             green, yellow = self._lookups[i].get(tl.getRedYellowGreenState(tls), (0, False))
             tau = 0.0 if yellow else min(1.0, tl.getSpentDuration(tls) / self.max_green)
         dens, queue = self._monitors[i].lane_features()
-        vec = [0.0, 0.0, tau]
+        vec = [0.0] * len(self._programs[self.possible_agents[i]].greens) + [tau]
         vec[green] = 1.0
         return np.array(vec + dens + queue, dtype=np.float32)
 
     def _info(self, i: int) -> dict[str, Any]:
-        w_v, n_v, w_p, n_p = self._last[i]
+        last = self._last[i]
+        w_v, n_v, w_p, n_p = last.vehicle_wait, last.vehicles, last.pedestrian_wait, last.pedestrians
         if self.signal_control == "agent":
             green, yellow = self._controllers[i].green, self._controllers[i].in_yellow
         else:
             state = self._api.trafficlight.getRedYellowGreenState(self.possible_agents[i])
             green, yellow = self._lookups[i].get(state, (0, False))
-        return {
+        info = {
             "vehicle_wait_total": w_v,
             "vehicle_wait_mean": w_v / n_v if n_v else 0.0,
             "pedestrian_wait_total": w_p,
             "pedestrian_wait_mean": w_p / n_p if n_p else 0.0,
             "vehicles_incoming": n_v,
             "pedestrians_incoming": n_p,
+            "vehicles_halting": last.halting,
             "green_phase": green,
             "yellow": yellow,
             "time": self._time,
         }
+        if "co2" in self.objective_names:
+            info["co2_g"] = last.co2_mg / 1000.0
+        return info
 
     def episode_metrics(self) -> dict[str, float]:
         """System metrics of the current (or just finished) episode.
@@ -479,12 +546,12 @@ class TrafficSignalEnv(ParallelEnv):
         * ``pedestrian_waiting_time_total`` / ``_mean``: the same for pedestrians (time standing on the
           approaches of the crossings), divided by ``pedestrians_departed``;
         * ``vehicles_departed``, ``vehicles_arrived``, ``pedestrians_departed``, ``pedestrians_arrived``;
-        * ``sim_time``: simulated seconds so far.
+        * ``sim_time``: simulated seconds since ``begin_time``.
 
         :return: the metrics (keys :data:`EPISODE_METRIC_KEYS`).
         """
-        veh = sum(m.vehicle_done + last[0] for m, last in zip(self._monitors, self._last, strict=True))
-        ped = sum(m.pedestrian_done + last[2] for m, last in zip(self._monitors, self._last, strict=True))
+        veh = sum(m.vehicle_done + last.vehicle_wait for m, last in zip(self._monitors, self._last, strict=True))
+        ped = sum(m.pedestrian_done + last.pedestrian_wait for m, last in zip(self._monitors, self._last, strict=True))
         dep_v, arr_v, dep_p, arr_p = self._counts
         return {
             "vehicle_waiting_time_total": float(veh),
@@ -495,7 +562,7 @@ class TrafficSignalEnv(ParallelEnv):
             "vehicles_arrived": float(arr_v),
             "pedestrians_departed": float(dep_p),
             "pedestrians_arrived": float(arr_p),
-            "sim_time": float(self._time),
+            "sim_time": float(self._time - self.begin_time),
         }
 
     # ------------------------------------------------------------------------------------- misc

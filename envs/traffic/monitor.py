@@ -18,13 +18,35 @@ Pedestrians (Eq. 25)
 
 When a vehicle or person leaves the approach its waiting time moves to a "done" total, so
 ``done + W`` is the total waiting time spent at this intersection during the episode.
+
+Queue and emissions
+    The halting vehicles (below 0.1 m/s) on the incoming lanes at the decision; with ``emissions=True``
+    the CO2 emitted on the incoming lanes (SUMO's ``lane.getCO2Emission``, mg per simulated second),
+    summed over the seconds of the episode.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 from .topology import IntersectionLayout
+
+
+class Measurement(NamedTuple):
+    """The state of one intersection at a decision (see :meth:`IntersectionMonitor.measure`)."""
+
+    vehicle_wait: float
+    """Total waiting time [s] of the vehicles on the incoming lanes (``W^v``)."""
+    vehicles: int
+    """Number of vehicles on the incoming lanes."""
+    pedestrian_wait: float
+    """Total waiting time [s] of the pedestrians on the approach (``W^p``)."""
+    pedestrians: int
+    """Number of pedestrians on the approach."""
+    halting: int
+    """Halting vehicles on the incoming lanes."""
+    co2_mg: float
+    """CO2 emitted on the incoming lanes since the episode began [mg] (0 without ``emissions``)."""
 
 
 class IntersectionMonitor:
@@ -33,11 +55,13 @@ class IntersectionMonitor:
     :param api: the ``libsumo`` module or a ``traci`` connection.
     :param layout: incoming lanes and capacities of the intersection.
     :param step_length: simulated seconds per :meth:`track` call.
+    :param emissions: also sum the CO2 emitted on the incoming lanes (one more SUMO call per lane and second).
     """
 
-    def __init__(self, api: Any, layout: IntersectionLayout, step_length: float = 1.0) -> None:
+    def __init__(self, api: Any, layout: IntersectionLayout, step_length: float = 1.0, emissions: bool = False) -> None:
         self.layout = layout
         self.step_length = step_length
+        self._co2 = api.lane.getCO2Emission if emissions else None
         self._veh_ids = api.edge.getLastStepVehicleIDs
         self._person_ids = api.edge.getLastStepPersonIDs
         self._acc_wait = api.vehicle.getAccumulatedWaitingTime
@@ -62,6 +86,8 @@ class IntersectionMonitor:
         """Waiting time [s] of vehicles that have already left the incoming lanes."""
         self.pedestrian_done = 0.0
         """Waiting time [s] of pedestrians that have already left the approach."""
+        self.co2_mg = 0.0
+        """CO2 emitted on the incoming lanes this episode [mg] (with ``emissions``)."""
 
     def track(self) -> None:
         """Record one simulated second: vehicles entering/leaving, pedestrians standing on the approach."""
@@ -96,12 +122,14 @@ class IntersectionMonitor:
                     pacc[p] = pacc.get(p, 0.0) + dt
                     n += 1
             self._ped_waiting[k] = n
+        if self._co2 is not None:
+            co2 = self._co2
+            self.co2_mg += dt * sum(co2(lane) for lane, _ in self._veh_lanes)
 
-    def measure(self) -> tuple[float, int, float, int]:
-        """Current cumulative waiting times (call after :meth:`track` of the current second).
+    def measure(self) -> Measurement:
+        """The intersection now (call after :meth:`track` of the current second).
 
-        :return: ``(W_v, n_v, W_p, n_p)``: total waiting time [s] of the incoming vehicles, their
-            number, total waiting time [s] of the pedestrians on the approach, their number.
+        :return: waiting times and numbers of the incoming vehicles and pedestrians, halting vehicles, CO2 so far.
         """
         acc = self._acc_wait
         offset = self._veh_offset
@@ -124,7 +152,8 @@ class IntersectionMonitor:
                 gone.append(p)
         for p in gone:
             self.pedestrian_done += pacc.pop(p)
-        return w_v, len(self._veh_on), w_p, len(on)
+        halting = sum(self._lane_halting(lane) for lane, _ in self._veh_lanes)
+        return Measurement(w_v, len(self._veh_on), w_p, len(on), halting, self.co2_mg)
 
     def lane_features(self) -> tuple[list[float], list[float]]:
         """Density and queue of every incoming lane, each divided by the lane's capacity and clipped to 1.

@@ -1,8 +1,10 @@
 """Files of the three-intersection pedestrian scenario and preparation of the per-episode demand.
 
 The scenario (paper Sec. 5.2) lives in ``envs/traffic/nets/``: the plain XML sources, the built
-network :data:`NET_FILE`, the demand :data:`ROUTE_FILE` and the actuated signal programs
-:data:`ACTUATED_FILE` (an additional file for the "actuated" baseline).
+network :data:`NET_FILE` and the demand :data:`ROUTE_FILE`.
+
+:func:`write_actuated_programs` writes SUMO actuated programs for the lights of any network (the "actuated"
+baseline).
 
 SUMO expands a ``personFlow`` into individual persons when it loads the route file, so a flow that
 lasts a simulated day makes every (re)load slow. :func:`trim_demand` writes a copy of a route file
@@ -13,7 +15,11 @@ from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
+from collections.abc import Iterable
 from pathlib import Path
+
+from .signals import is_green
+from .topology import IntersectionLayout
 
 NETS_DIR = Path(__file__).resolve().parent / "nets"
 """Folder holding the scenario's sources and built network."""
@@ -24,9 +30,6 @@ NET_FILE = NETS_DIR / "three_junctions.net.xml"
 ROUTE_FILE = NETS_DIR / "three_junctions.rou.xml"
 """Demand: vehicle flows HO1-HO3 (every 3.3 s), VO1 (every 20 s), one pedestrian per second VO1 -> VD1."""
 
-ACTUATED_FILE = NETS_DIR / "actuated.add.xml"
-"""Actuated signal programs (programID ``"actuated"``), loaded as an additional file."""
-
 _FLOW_TAGS = frozenset({"flow", "personFlow", "containerFlow"})
 
 
@@ -34,7 +37,8 @@ def trim_demand(route_file: str | os.PathLike[str], end: float, directory: str |
     """Write a copy of ``route_file`` whose flows stop at ``end``.
 
     Only the ``end`` attribute of ``flow``, ``personFlow`` and ``containerFlow`` elements is lowered
-    (to ``end``) where it is larger; everything departing before ``end`` is unchanged.
+    (to ``end``) where it is larger, and flows that begin at ``end`` or later are left out; everything departing
+    before ``end`` is unchanged.
 
     :param route_file: SUMO route file.
     :param end: simulated time [s] after which no flow inserts anything.
@@ -48,13 +52,18 @@ def trim_demand(route_file: str | os.PathLike[str], end: float, directory: str |
     except ET.ParseError as exc:
         raise ValueError(f"route file {route_file} is not valid XML: {exc}") from exc
     changed = False
-    for elem in tree.getroot().iter():
-        if elem.tag in _FLOW_TAGS and "end" in elem.attrib:
+    for parent in list(tree.getroot().iter()):
+        for elem in list(parent):
+            if elem.tag not in _FLOW_TAGS or "end" not in elem.attrib:
+                continue
             try:
-                flow_end = float(elem.attrib["end"])
+                flow_begin, flow_end = float(elem.get("begin", "0")), float(elem.attrib["end"])
             except ValueError:
                 continue
-            if flow_end > end:
+            if flow_begin >= end:  # inserts nothing before the end; SUMO refuses a flow ending before it begins
+                parent.remove(elem)
+                changed = True
+            elif flow_end > end:
                 elem.set("end", f"{end:g}")
                 changed = True
     if not changed:
@@ -62,3 +71,30 @@ def trim_demand(route_file: str | os.PathLike[str], end: float, directory: str |
     out = Path(directory) / f"{route_file.stem}.until{end:g}{''.join(route_file.suffixes[-1:])}"
     tree.write(out, encoding="UTF-8", xml_declaration=True)
     return out
+
+
+def write_actuated_programs(
+    layouts: Iterable[IntersectionLayout], min_green: int, max_green: int, path: str | os.PathLike[str]
+) -> Path:
+    """Write an additional file with an actuated program (``programID="actuated"``) for each traffic light.
+
+    Each program has the phases of the light's static program; its green phases are extended by SUMO's gap-based
+    actuation between ``min_green`` and ``max_green`` seconds. Loaded as an additional file, the program becomes
+    the active one.
+
+    :param layouts: the lights (:func:`~.topology.read_network`).
+    :param min_green: minimum green [s] (``minDur``).
+    :param max_green: maximum green [s] (``maxDur``).
+    :param path: the file to write.
+    :return: ``path``.
+    """
+    root = ET.Element("additional")
+    for layout in layouts:
+        logic = ET.SubElement(root, "tlLogic", id=layout.tls_id, type="actuated", programID="actuated", offset="0")
+        for state, duration in layout.phases:
+            phase = ET.SubElement(logic, "phase", duration=f"{duration:g}", state=state)
+            if is_green(state):
+                phase.set("minDur", str(min_green))
+                phase.set("maxDur", str(max_green))
+    ET.ElementTree(root).write(path, encoding="UTF-8", xml_declaration=True)
+    return Path(path)

@@ -1,8 +1,9 @@
-"""Green/yellow phase logic of one traffic light under agent control (keep / change actions).
+"""Green/yellow phase logic of one traffic light under agent control.
 
-:class:`SignalProgram` extracts the two green phases and their yellow transitions from a static
-program; :class:`SignalController` is a small state machine that enforces the minimum and maximum
-green times and the yellow time. It never touches SUMO: it returns the state string to show, and
+:class:`SignalProgram` extracts the green phases (two or more) and their yellow transitions from a
+static program; :class:`SignalController` is a small state machine that shows the green an agent asks
+for (the next one of the cycle, or any one) and enforces the minimum and maximum green times and the
+yellow time. It never touches SUMO: it returns the state string to show, and
 the environment sends it with ``trafficlight.setRedYellowGreenState``. That call puts the light on
 SUMO's single-phase "online" program, which never advances by itself.
 
@@ -18,10 +19,11 @@ KEEP = 0
 """Action: keep the current green phase."""
 
 CHANGE = 1
-"""Action: switch to the other green phase (through a yellow phase)."""
+"""Action: switch to the next green phase of the cycle (through a yellow phase)."""
 
 
-def _is_green(state: str) -> bool:
+def is_green(state: str) -> bool:
+    """Whether a phase state is a green phase: some links green, none yellow."""
     return any(c in "Gg" for c in state) and not any(c in "yYuo" for c in state)
 
 
@@ -46,7 +48,7 @@ class SignalProgram:
     yellows: tuple[str, ...]
 
     @classmethod
-    def from_phases(cls, states: Sequence[str], tls_id: str = "?", n_greens: int = 2) -> SignalProgram:
+    def from_phases(cls, states: Sequence[str], tls_id: str = "?") -> SignalProgram:
         """Build from the phase states of a program.
 
         A green phase has green links and no yellow ones. The yellow after green ``i`` is the first
@@ -55,16 +57,14 @@ class SignalProgram:
 
         :param states: phase state strings, in cycle order.
         :param tls_id: traffic-light id, for error messages.
-        :param n_greens: required number of green phases.
         :return: the program.
-        :raises ValueError: if the program does not have exactly ``n_greens`` green phases.
+        :raises ValueError: if the program has fewer than two green phases (nothing to choose).
         """
         states = list(states)
-        green_idx = [i for i, s in enumerate(states) if _is_green(s)]
-        if len(green_idx) != n_greens:
+        green_idx = [i for i, s in enumerate(states) if is_green(s)]
+        if len(green_idx) < 2:
             raise ValueError(
-                f"traffic light {tls_id!r} must have exactly {n_greens} green phases, "
-                f"found {len(green_idx)} in {states}"
+                f"traffic light {tls_id!r} needs at least 2 green phases to control, found {len(green_idx)} in {states}"
             )
         greens, yellows = [], []
         for k, i in enumerate(green_idx):
@@ -74,6 +74,17 @@ class SignalProgram:
             greens.append(states[i])
             yellows.append(yellow if yellow is not None else _derive_yellow(states[i], states[j]))
         return cls(tuple(greens), tuple(yellows))
+
+    def transition(self, green: int, target: int) -> str:
+        """Yellow state shown between green ``green`` and green ``target``.
+
+        :param green: index of the green shown.
+        :param target: index of the green that follows.
+        :return: the program's yellow when ``target`` follows ``green`` in the cycle, else a derived one.
+        """
+        if target == (green + 1) % len(self.greens):
+            return self.yellows[green]
+        return _derive_yellow(self.greens[green], self.greens[target])
 
     def lookup(self) -> dict[str, tuple[int, bool]]:
         """Map each state string to ``(green index it shows or leads to, is_yellow)``.
@@ -86,10 +97,12 @@ class SignalProgram:
 
 
 class SignalController:
-    """Keep/change controller with minimum/maximum green and a fixed yellow time.
+    """Controller of one light: minimum/maximum green and a fixed yellow time.
 
-    * ``change`` before ``min_green`` seconds of green is ignored (the green is kept);
-    * a green that reaches ``max_green`` seconds is ended by :meth:`tick` whatever the agent wants;
+    * a change (:meth:`act` with :data:`CHANGE`, or :meth:`request` of another green) before
+      ``min_green`` seconds of green is ignored (the green is kept);
+    * a green that reaches ``max_green`` seconds is ended by :meth:`tick` whatever the agent wants
+      (the next green of the cycle follows);
     * between two greens the yellow state is shown for exactly ``yellow_time`` seconds;
     * during yellow, actions are ignored.
 
@@ -134,14 +147,23 @@ class SignalController:
         return 0 if self.in_yellow else time - self.green_start
 
     def act(self, action: int, time: int) -> str | None:
-        """Apply an agent's decision at ``time``.
+        """Apply a keep/change decision at ``time``.
 
-        :param action: :data:`KEEP` or :data:`CHANGE`.
+        :param action: :data:`KEEP` or :data:`CHANGE` (to the next green of the cycle).
         :param time: current simulation time [s].
         :return: the new state string if the light changes now, else ``None``.
         """
-        if action == CHANGE and not self.in_yellow and time - self.green_start >= self.min_green:
-            return self._start_yellow(time)
+        return self.request(self._next() if action == CHANGE else self.green, time)
+
+    def request(self, green: int, time: int) -> str | None:
+        """Ask for green phase ``green`` at ``time``: the current one is kept, another one follows a yellow.
+
+        :param green: index of the green phase wanted.
+        :param time: current simulation time [s].
+        :return: the new state string if the light changes now, else ``None``.
+        """
+        if green != self.green and not self.in_yellow and time - self.green_start >= self.min_green:
+            return self._start_yellow(time, green)
         return None
 
     def tick(self, time: int) -> str | None:
@@ -159,12 +181,15 @@ class SignalController:
                 return self.program.greens[self.green]
             return None
         if time - self.green_start >= self.max_green:
-            return self._start_yellow(time)
+            return self._start_yellow(time, self._next())
         return None
 
-    def _start_yellow(self, time: int) -> str:
-        state = self.program.yellows[self.green]
-        self.green = (self.green + 1) % len(self.program.greens)
+    def _next(self) -> int:
+        return (self.green + 1) % len(self.program.greens)
+
+    def _start_yellow(self, time: int, target: int) -> str:
+        state = self.program.transition(self.green, target)
+        self.green = target
         self.in_yellow = True
         self.yellow_end = time + self.yellow_time
         self.green_start = self.yellow_end

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         "episodes": args.episodes,
         "seed": args.seed,
         "gpi_set": args.gpi_set or config.get("gpi_set", "all"),
-        "objectives": preset.objectives,
+        "objectives": preset.objective_names(config["env_kwargs"]),
         "episode_metrics": preset.episode_metrics,
         "step_metrics": preset.step_metrics,
         "rows": [],
@@ -123,7 +123,7 @@ def _planned(
             weights.append(list(fixed["weights"]))
     if not weights:
         raise UsageError("no weights to evaluate GPI at: pass --w")
-    n_objectives = len(preset.objectives or [])
+    n_objectives = len(preset.objective_names(config["env_kwargs"]) or [])
     for w in weights:
         if n_objectives and len(w) != n_objectives:
             raise UsageError(f"--w must have length {n_objectives} (one weight per objective), got {len(w)}")

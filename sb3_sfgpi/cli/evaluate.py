@@ -49,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         env.close()
     print(f"GPI over {len(policy_set)} policies ({which}), w={np.round(w, 4).tolist()}, {args.episodes} episode(s)")
-    if preset.objectives and len(preset.objectives) == len(w):
-        print(f"  objectives: {', '.join(preset.objectives)}")
+    names = preset.objective_names(config["env_kwargs"])
+    if names and len(names) == len(w):
+        print(f"  objectives: {', '.join(names)}")
     for agent in result.discounted:
         disc, total = result.mean_discounted(agent), result.mean_undiscounted(agent)
         print(

@@ -18,7 +18,7 @@ ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
 #: What each entry of ``--w`` weighs in the shipped domains (``--help``).
 WEIGHT_HELP = (
     "one per objective, in the domain's order (four-room: blue squares, green triangles, red circles collected; "
-    "traffic: vehicles, pedestrians, by their waiting times)"
+    "traffic: vehicles, pedestrians, by their waiting times, or the env's objectives=[...])"
 )
 #: The settings of a run's ``run.json`` that the commands read to rebuild its env and learners.
 CLI_SETTINGS = ("domain", "env_kwargs", "learner_kwargs")
@@ -102,6 +102,16 @@ class DomainPreset:
             return self.make_env(**env_kwargs)
         except (TypeError, ValueError) as error:
             raise UsageError(f"the {self.name} env refuses {env_kwargs}: {error}") from error
+
+    def objective_names(self, env_kwargs: dict[str, Any]) -> list[str] | None:
+        """
+        The objectives' names of a run: the env's ``objectives`` argument where the run chooses them from a menu (as
+        the traffic env's), else the preset's.
+        """
+        chosen = env_kwargs.get("objectives")
+        if isinstance(chosen, list) and chosen and all(isinstance(name, str) for name in chosen):
+            return chosen
+        return self.objectives
 
     def _check(self) -> None:
         if not callable(self.make_env):
