@@ -94,7 +94,7 @@ def main() -> None:
         algo_runs = [run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo]
         rows = [read_rows(run) for run in algo_runs]
         ended = [ols_ended(RunDirectory(run)) for run in algo_runs]
-        curves = align_runs([{int(r["iteration"]) + 1: float(r["mean_return"]) for r in rs} for rs in rows], ended)
+        curves = align_runs([{int(r["iteration"]): float(r["mean_return"]) for r in rs} for rs in rows], ended)
         # Runs whose OLS ended early keep their final set to the common length; others stop where they stopped.
         pad = max_iterations(runs) - curves.shape[1]
         curves = np.array([extend(row, pad, done) for row, done in zip(curves, ended, strict=True)])

@@ -1,6 +1,6 @@
 """GPI's own estimate against its return, iteration by iteration, for a finished MA-SFOLS run.
 
-For every iteration ``k`` of the run, Π is cut to the policies of iterations ``0..k`` and, for every test weight of
+For every iteration ``k`` of the run, Π is cut to the policies of iterations ``1..k`` and, for every test weight of
 the run and every agent, two numbers are compared:
 
 * predicted: ``max_π max_a w · ψπ(s0, a)``, the value GPI expects from the agent's first observation;

@@ -132,10 +132,10 @@ def main(argv: list[str] | None = None) -> None:
         n_values = len(ols.values)
         ols.add_solution(value, w)
         if len(ols.values) > n_values:  # a new value vector: the policy joins the set (Algorithm 1, lines 20-22)
-            policy_set.add(model, value=value, iteration=iteration)
+            policy_set.add(model, value=value, iteration=iteration + 1)
         utility = evaluate_gpi(policy_set, env, test_weights, seed=args.seed)
         print(
-            f"iter {iteration:2d}  w={np.array2string(w, precision=3, suppress_small=True)}  "
+            f"iter {iteration + 1:2d}  w={np.array2string(w, precision=3, suppress_small=True)}  "
             f"V={np.array2string(value, precision=3, suppress_small=True)}  |Π|={len(policy_set)}  "
             f"CCS size={len(ols.ccs)}  GPI mean w·return={utility:.4f}  GPI / optimum = {utility / optimum:.3f}  "
             f"wall={time.time() - start:.1f}s",

@@ -267,7 +267,7 @@ class OLSCallback(BaseCallback):
         self.model.start_iteration(weights, self.iteration, self.steps_per_iteration, init_networks=init)
         if self.progress_bar:
             self._iteration_bar = tqdm(
-                total=self.steps_per_iteration, desc=f"iteration {self.iteration}", unit="step", leave=False
+                total=self.steps_per_iteration, desc=f"iteration {self.iteration + 1}", unit="step", leave=False
             )
 
     def _best_network(self, w: np.ndarray) -> Any:
@@ -291,7 +291,7 @@ class OLSCallback(BaseCallback):
         """Add ``agent``'s new policy to Π, unless GPI does worse with it on the validation weights."""
         validate = self.validation.n_weights > 0 and len(self.policy_set) > 0
         before = self._gpi_validation_score() if validate else 0.0
-        self.policy_set.add(self.model.learners[agent], value=value, agent=agent, iteration=self.iteration)
+        self.policy_set.add(self.model.learners[agent], value=value, agent=agent, iteration=self.iteration + 1)
         self._validation_score = None  # Π changed
         if validate and (after := self._gpi_validation_score()) < before:
             self.policy_set.pop()
@@ -320,7 +320,7 @@ class OLSCallback(BaseCallback):
         metrics, details = summarize_test_episodes(self._test_weights, self._run_test_episodes())
         reference = self.evaluation.hypervolume_reference
         summary = {
-            "iteration": self.iteration,
+            "iteration": self.iteration + 1,  # iterations are numbered from 1 wherever they are named
             "timesteps": self.model.num_timesteps,
             "n_policies": len(self.policy_set),
             "ccs_size": len(self.schedule.ols.ccs),
@@ -360,7 +360,7 @@ class OLSCallback(BaseCallback):
     def _log(self, summary: dict[str, Any]) -> None:
         for key, value in summary_scalars(summary).items():
             self.logger.record(key, value)
-        self.logger.dump(step=self.iteration)
+        self.logger.dump(step=summary["iteration"])
         if self.verbose:
             print(
                 f"iteration {summary['iteration']}: |Π|={summary['n_policies']} CCS={summary['ccs_size']} "

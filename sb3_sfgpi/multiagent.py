@@ -243,7 +243,7 @@ class MultiAgentRunner:
             self.learners[agent] = learner
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for agent, learner in self.learners.items():
-            log_name = f"{agent}_iter{iteration:03d}"
+            log_name = f"{agent}_iter{iteration + 1:03d}"  # iterations are named from 1
             if self.tensorboard_log is not None:
                 learner.tensorboard_log = self.tensorboard_log
                 _remove_interrupted_logs(self.tensorboard_log, log_name)

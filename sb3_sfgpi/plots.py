@@ -127,7 +127,7 @@ def plot_returns(
     for algorithm, run_dir in runs:
         rows = run_dir.read_summary()
         curves.setdefault(algorithm, []).append(
-            {int(row["iteration"]) + 1: float(row[metric]) for row in rows if row[metric] != ""}
+            {int(row["iteration"]): float(row[metric]) for row in rows if row[metric] != ""}
         )
         ended.setdefault(algorithm, []).append(ols_ended(run_dir))
     plt = _pyplot()

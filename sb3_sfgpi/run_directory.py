@@ -69,9 +69,17 @@ def _weights(value: Any, ndim: int) -> bool:
     return array.ndim == ndim and array.size > 0 and bool(np.isfinite(array).all() and (array >= 0).all())
 
 
-def _summary_row(row: Any, index: int) -> bool:
-    """Whether ``row`` is the summary of iteration ``index``: its counts integers, its measures finite numbers."""
-    if not isinstance(row, dict) or row.get("iteration") != index or not _integer(row["iteration"]):
+def _numbered_from_one(history: list[Any]) -> list[Any]:
+    """Rows of a run written before 2026-11-23, which numbered iterations from 0, renumbered from 1."""
+    if not history or not isinstance(history[0], dict) or history[0].get("iteration") != 0:
+        return history
+    legacy = [isinstance(row, dict) and _integer(row.get("iteration")) for row in history]
+    return [{**row, "iteration": row["iteration"] + 1} if ok else row for row, ok in zip(history, legacy, strict=True)]
+
+
+def _summary_row(row: Any, number: int) -> bool:
+    """Whether ``row`` is the summary of iteration ``number``: its counts integers, its measures finite numbers."""
+    if not isinstance(row, dict) or row.get("iteration") != number or not _integer(row["iteration"]):
         return False
     counts = ("timesteps", "n_policies", "ccs_size")
     measures = ("mean_return", "mean_return_undiscounted", "expected_utility", "wall_time", "eval_time")
@@ -243,10 +251,10 @@ class RunDirectory:
         history = read_json(path, "evaluation")
         if not isinstance(history, list) or (n_iterations is not None and len(history) < n_iterations):
             raise ValueError(f"evaluation {path} does not hold the checkpoint's rows")
-        history = history if n_iterations is None else history[:n_iterations]
-        for index, row in enumerate(history):
-            if not _summary_row(row, index):
-                raise ValueError(f"evaluation {path}: row {index} is not the summary of iteration {index}")
+        history = _numbered_from_one(history if n_iterations is None else history[:n_iterations])
+        for number, row in enumerate(history, start=1):
+            if not _summary_row(row, number):
+                raise ValueError(f"evaluation {path}: row {number} is not the summary of iteration {number}")
         return history
 
     def read_summary(self) -> list[dict[str, str]]:
@@ -258,7 +266,10 @@ class RunDirectory:
         if not self.has_evaluations():
             raise ValueError(f"{self.path} has no {self.EVALUATION_CSV} yet")
         with open(self.path / self.EVALUATION_CSV, newline="") as handle:
-            return list(csv.DictReader(handle))
+            rows = list(csv.DictReader(handle))
+        if rows and rows[0].get("iteration") == "0":  # numbered from 0 before 2026-11-23
+            return [{**row, "iteration": str(int(row["iteration"]) + 1)} for row in rows]
+        return rows
 
     # --- logs -----------------------------------------------------------------------------------------------
     def make_logger(self) -> Logger:

@@ -53,7 +53,7 @@ def assert_same_policy_sets(a: GPIPolicy, b: GPIPolicy) -> None:
 def test_learn_returns_self_and_fills_history_and_policy_set():
     model = make(steps=100, weights="random")
     assert model.learn(max_iterations=2) is model
-    assert [row["iteration"] for row in model.history] == [0, 1]
+    assert [row["iteration"] for row in model.history] == [1, 2]
     assert [row["timesteps"] for row in model.history] == [100, 200]
     assert len(model.policy_set) >= 1 and model.history[-1]["n_policies"] == len(model.policy_set)
     for row in model.history:
@@ -192,24 +192,24 @@ def test_a_killed_iterations_logs_are_replaced_on_resume(tmp_path):
     finished = progress.read_text()
     progress.write_text(finished + finished.splitlines(keepends=True)[-1])  # a row logged, then killed: no checkpoint
     tensorboard = tmp_path / "tensorboard"
-    for agent in ("agent_0", "agent_1"):  # the killed attempt at iteration 2 had started its TensorBoard logs
-        (tensorboard / f"{agent}_iter002_1").mkdir()
-        (tensorboard / f"{agent}_iter002_1" / "events.out.tfevents.killed").write_text("partial")
+    for agent in ("agent_0", "agent_1"):  # the killed attempt at iteration 3 had started its TensorBoard logs
+        (tensorboard / f"{agent}_iter003_1").mkdir()
+        (tensorboard / f"{agent}_iter003_1" / "events.out.tfevents.killed").write_text("partial")
     killed_scalars = TensorBoardOutputFormat(str(tmp_path / "logs"))  # its OLS scalars too
-    killed_scalars.write({"ols/iteration": 2}, {"ols/iteration": ()}, step=2)
+    killed_scalars.write({"ols/iteration": 3}, {"ols/iteration": ()}, step=3)
     killed_scalars.close()
     MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=3)
     rows = progress.read_text().splitlines()
     assert progress.read_text().startswith(finished) and len(rows) == 4
     folders = sorted(folder.name for folder in tensorboard.iterdir())
-    assert folders == [f"{agent}_iter{i:03d}_1" for agent in ("agent_0", "agent_1") for i in range(3)]
+    assert folders == [f"{agent}_iter{i:03d}_1" for agent in ("agent_0", "agent_1") for i in (1, 2, 3)]
     assert not list(tensorboard.glob("*/events.out.tfevents.killed"))
-    assert scalar_steps(tmp_path / "logs", "ols/iteration") == [0, 1, 2]
-    assert scalar_steps(tmp_path / "logs", "ols/mean_return") == [0, 1, 2]
+    assert scalar_steps(tmp_path / "logs", "ols/iteration") == [1, 2, 3]
+    assert scalar_steps(tmp_path / "logs", "ols/mean_return") == [1, 2, 3]
 
 
 def test_learners_log_their_learning_curve_during_the_iteration(tmp_path):
     make(steps=300, weights="random", run_dir=tmp_path).learn(max_iterations=1)
-    steps = scalar_steps(tmp_path / "tensorboard" / "agent_0_iter000_1", "rollout/ep_rew_mean")
+    steps = scalar_steps(tmp_path / "tensorboard" / "agent_0_iter001_1", "rollout/ep_rew_mean")
     # chain episodes take a few steps: a point every 4 episodes (SB3's log_interval), not one at the end
     assert len(steps) >= 5 and steps == sorted(steps) and steps[-1] <= 300

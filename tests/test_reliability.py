@@ -148,10 +148,10 @@ def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_pat
     ]
     progress = (cut / "logs" / "progress.csv").read_text().splitlines()
     column = progress[0].split(",").index("ols/iteration")
-    assert [int(row.split(",")[column]) for row in progress[1:]] == [0, 1, 2]
-    assert scalar_steps(cut / "logs", "ols/mean_return") == [0, 1, 2]
+    assert [int(row.split(",")[column]) for row in progress[1:]] == [1, 2, 3]
+    assert scalar_steps(cut / "logs", "ols/mean_return") == [1, 2, 3]
     folders = sorted(folder.name for folder in (cut / "tensorboard").iterdir())
-    assert folders == [f"{agent}_iter{i:03d}_1" for agent in ("agent_0", "agent_1") for i in range(3)]
+    assert folders == [f"{agent}_iter{i:03d}_1" for agent in ("agent_0", "agent_1") for i in (1, 2, 3)]
 
 
 def test_the_stop_message_repeats_the_iteration_cap(tmp_path):

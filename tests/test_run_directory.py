@@ -86,7 +86,7 @@ def test_layout(tmp_path):
 
     run_dir.write_config({"seed": 1})
     assert run_dir.is_run() and json.loads((tmp_path / "run" / "run.json").read_text()) == {"seed": 1}
-    run_dir.write_iteration([row(0)], checkpoint(1))
+    run_dir.write_iteration([row(1)], checkpoint(1))
     assert run_dir.has_checkpoint() and run_dir.has_evaluations()
     names = {p.name for p in run_dir.path.iterdir()}
     assert names == {"run.json", "evaluation.json", "evaluation.csv", "checkpoint.json"}  # no temporary files left
@@ -95,7 +95,7 @@ def test_layout(tmp_path):
 def test_write_iteration_writes_the_evaluations_then_the_checkpoint_last(tmp_path, monkeypatch):
     written = record_writes(monkeypatch)
     run_dir = RunDirectory(tmp_path)
-    history = [row(0), row(1)]
+    history = [row(1), row(2)]
     run_dir.write_iteration(history, checkpoint(2))
     assert written[-1] == "checkpoint.json" and written.count("checkpoint.json") == 1
     assert set(written) == {"evaluation.json", "evaluation.csv", "checkpoint.json"}
@@ -107,7 +107,7 @@ def test_write_iteration_writes_the_evaluations_then_the_checkpoint_last(tmp_pat
         assert tuple(next(reader)) == SUMMARY_FIELDS
         assert len(list(reader)) == 2
     summary = run_dir.read_summary()
-    assert [r["iteration"] for r in summary] == ["0", "1"]
+    assert [r["iteration"] for r in summary] == ["1", "2"]
     assert float(summary[1]["mean_return"]) == history[1]["mean_return"]
     assert summary[0]["hypervolume"] == ""  # None is an empty cell
     assert "weights_trained" not in summary[0]
@@ -115,12 +115,12 @@ def test_write_iteration_writes_the_evaluations_then_the_checkpoint_last(tmp_pat
 
 def test_a_failed_checkpoint_write_leaves_the_previous_checkpoint_intact(tmp_path, monkeypatch):
     run_dir = RunDirectory(tmp_path)
-    run_dir.write_iteration([row(0)], checkpoint(1))
+    run_dir.write_iteration([row(1)], checkpoint(1))
     before = (tmp_path / "checkpoint.json").read_bytes()
 
     written = record_writes(monkeypatch, fail_on="checkpoint.json")
     with pytest.raises(OSError, match="No space left"):
-        run_dir.write_iteration([row(0), row(1)], checkpoint(2))
+        run_dir.write_iteration([row(1), row(2)], checkpoint(2))
     assert written[-1] == "checkpoint.json"
     assert (tmp_path / "checkpoint.json").read_bytes() == before
     state = run_dir.read_checkpoint()
@@ -128,7 +128,18 @@ def test_a_failed_checkpoint_write_leaves_the_previous_checkpoint_intact(tmp_pat
     assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []  # the temporary file is removed
     # The evaluation files went ahead; a resume trusts the checkpoint's count and ignores the extra row.
     assert len(run_dir.read_history()) == 2
-    assert run_dir.read_history(state["iteration"]) == [row(0)]
+    assert run_dir.read_history(state["iteration"]) == [row(1)]
+
+
+def test_runs_that_numbered_iterations_from_0_are_read_numbered_from_1(tmp_path):
+    run_dir = RunDirectory(tmp_path)
+    run_dir.write_iteration([row(0), row(1)], checkpoint(2))  # as written before 2026-11-23
+    assert [r["iteration"] for r in run_dir.read_history()] == [1, 2]
+    assert [r["iteration"] for r in run_dir.read_summary()] == ["1", "2"]
+    assert run_dir.read_history()[1]["mean_return"] == row(1)["mean_return"]
+    run_dir.write_iteration([row(0), row(2)], checkpoint(2))  # a gap is not a legacy run: refused
+    with pytest.raises(ValueError, match="row 2 is not the summary of iteration 2"):
+        run_dir.read_history()
 
 
 # --- checkpoint and run description -----------------------------------------------------------------------------
@@ -178,7 +189,7 @@ def test_read_config_refuses_what_is_not_a_run(tmp_path):
 # --- history ----------------------------------------------------------------------------------------------------
 def test_read_history_returns_the_first_rows_the_checkpoint_counts(tmp_path):
     run_dir = RunDirectory(tmp_path)
-    history = [row(0), row(1), row(2)]
+    history = [row(1), row(2), row(3)]
     run_dir.write_iteration(history, checkpoint(3))
     assert run_dir.read_history() == history
     assert run_dir.read_history(2) == history[:2]
@@ -243,7 +254,7 @@ def test_temporary_directory_is_removed_by_remove_temporary():
     run_dir = RunDirectory.temporary()
     try:
         assert run_dir.path.is_dir() and run_dir.path.name.startswith("sfgpi_run_")
-        run_dir.write_iteration([row(0)], checkpoint(1))
+        run_dir.write_iteration([row(1)], checkpoint(1))
         assert run_dir.has_checkpoint()
     finally:
         run_dir.remove_temporary()
@@ -254,7 +265,7 @@ def test_temporary_directory_is_removed_by_remove_temporary():
 def test_remove_temporary_deletes_nothing_of_a_normal_directory(tmp_path):
     run_dir = RunDirectory(tmp_path / "run")
     run_dir.write_config({"seed": 0})
-    run_dir.write_iteration([row(0)], checkpoint(1))
+    run_dir.write_iteration([row(1)], checkpoint(1))
     run_dir.remove_temporary()
     assert run_dir.is_run() and run_dir.has_checkpoint() and run_dir.has_evaluations()
     assert RunDirectory(tmp_path / "run").read_checkpoint() == checkpoint(1)

@@ -170,7 +170,7 @@ def test_masfols_trains_on_the_grid_through_the_cli(tmp_path, capsys):
             "--learner", "learning_starts=20", "--learner", "batch_size=8"]  # fmt: skip
     assert main(argv) == 0
     evaluation = json.loads((out / "evaluation.json").read_text())
-    assert [row["iteration"] for row in evaluation] == [0, 1]
+    assert [row["iteration"] for row in evaluation] == [1, 2]
     assert all(np.isfinite(row["mean_return"]) and len(row["test"]) == 3 for row in evaluation)
     policy_set = GPIPolicy.load(out / "policy_set")
     assert policy_set.reward_dim == 2 and {info.agent for info in policy_set.infos} <= {"1", "2", "5", "6"}

@@ -267,7 +267,7 @@ def _stopped_message(args: argparse.Namespace, run_dir: RunDirectory, model: MAS
     reason = " ".join(reason.split())  # one line
     weights = model.settings["weights"]
     return (
-        f"training stopped in iteration {model.callback.iteration} ({reason}). The checkpoint of the last finished "
+        f"training stopped in iteration {model.callback.iteration + 1} ({reason}). The checkpoint of the last finished "
         f"iteration ({done} done) in {run_dir} is intact: continue with "
         f"`sb3-sfgpi train {args.domain} --algo {args.algo} --seed {args.seed} --out {run_dir} --resume"
         + ("" if args.iterations is None else f" --iterations {args.iterations}")
@@ -282,7 +282,7 @@ def _print_result(run_dir: RunDirectory, model: MASFOLS) -> None:
         return
     last = model.history[-1]
     print(
-        f"{run_dir}: {last['iteration'] + 1} iterations, |Π|={last['n_policies']}, CCS={last['ccs_size']}, "
+        f"{run_dir}: {last['iteration']} iterations, |Π|={last['n_policies']}, CCS={last['ccs_size']}, "
         f"mean w·return (discounted)={last['mean_return']:.4f}, {last['wall_time']:.1f}s"
         + (" (OLS ended: the set is a CCS)" if model.callback.ended_by_schedule else "")
     )
