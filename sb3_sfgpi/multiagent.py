@@ -20,7 +20,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-from stable_baselines3.common.logger import Logger, configure
+from stable_baselines3.common.logger import Logger, make_output_format
 from stable_baselines3.common.type_aliases import MaybeCallback, TrainFrequencyUnit
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
@@ -98,6 +98,11 @@ def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
     return make
 
 
+def folderless_logger(verbose: int) -> Logger:
+    """An SB3 logger writing to stdout (``verbose > 0``) or nowhere, without creating a folder."""
+    return Logger(None, [make_output_format("stdout", "")] if verbose else [])
+
+
 def _remove_interrupted_logs(directory: str, log_name: str) -> None:
     """
     Delete the TensorBoard folders (``log_name_N``, SB3's naming) that an interrupted attempt at the same iteration
@@ -160,7 +165,7 @@ class MultiAgentRunner:
         self._gamma = gamma
         self.num_timesteps = 0
         self.iteration = 0
-        self.logger: Logger = configure(None, ["stdout"] if verbose else [""])
+        self.logger: Logger = folderless_logger(verbose)
         self._start_time = time.time()
 
     def _check_homogeneous(self) -> None:
@@ -247,6 +252,8 @@ class MultiAgentRunner:
             if self.tensorboard_log is not None:
                 learner.tensorboard_log = self.tensorboard_log
                 _remove_interrupted_logs(self.tensorboard_log, log_name)
+            else:  # SB3's own logger would make a folder in the temporary directory for every learner
+                learner.set_logger(folderless_logger(learner.verbose))
             _, callback = learner._setup_learn(
                 total_timesteps,
                 self.learner_callback(agent) if self.learner_callback else None,

@@ -213,3 +213,9 @@ def test_learners_log_their_learning_curve_during_the_iteration(tmp_path):
     steps = scalar_steps(tmp_path / "tensorboard" / "agent_0_iter001_1", "rollout/ep_rew_mean")
     # chain episodes take a few steps: a point every 4 episodes (SB3's log_interval), not one at the end
     assert len(steps) >= 5 and steps == sorted(steps) and steps[-1] <= 300
+
+
+def test_training_without_a_run_directory_leaves_no_logger_folders(tmp_path, monkeypatch):
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path / "sb3"))  # where SB3's configure() would create its folder
+    make(steps=50, weights="random").learn(max_iterations=2)
+    assert not (tmp_path / "sb3").exists()
