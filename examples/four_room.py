@@ -43,6 +43,12 @@ def first_within(curve: np.ndarray, fraction: float = 0.95) -> int:
     return int(np.argmax(curve >= fraction * final)) + 1
 
 
+def observation_mode(env_overrides: list[str]) -> str:
+    """The observation mode the runs use (the preset's ``own`` unless ``--env observation_mode=...``)."""
+    modes = [item.partition("=")[2] for item in env_overrides if item.startswith("observation_mode=")]
+    return modes[-1] if modes else "own"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -80,7 +86,7 @@ def main() -> None:
             str(args.figure),
             *(["--fixed", *map(str, apriori)] if apriori else []),
             "--title",
-            "Four-Room: GPI return over 12 test weights (both agents)",
+            f"Four-Room, {observation_mode(args.env)} observations: GPI return over 12 test weights, both agents",
         ],
         check=True,
     )

@@ -22,9 +22,10 @@ import numpy as np
 
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import CLI_SETTINGS, DomainPreset, load_domain
-from sb3_sfgpi.cli.values import check_weights, format_weights
+from sb3_sfgpi.cli.values import check_weights
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.serialization import atomic_write_json
+from sb3_sfgpi.common.weights import format_weights
 from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, run_job
 from sb3_sfgpi.run_directory import RunDirectory
 

@@ -6,8 +6,6 @@ import json
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
-
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.common.weights import validate_weights
 
@@ -30,7 +28,3 @@ def check_weights(values: Sequence[float], name: str) -> list[float]:
     """Weights of unknown length (checked against the domain later): non-negative, finite, summing to 1."""
     return validate_weights(values, len(values), name).tolist()
 
-
-def format_weights(w: Sequence[float]) -> str:
-    """``[0.2,0.8]``: weights rounded to 3 decimals, for labels."""
-    return "[" + ",".join(f"{x:g}" for x in np.round(w, 3)) + "]"

@@ -6,6 +6,8 @@ Every public entry point of the library passes user weights through :func:`valid
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 
@@ -60,3 +62,8 @@ def random_weights(reward_dim: int, n: int | None = None, rng: np.random.Generat
     """
     generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     return generator.dirichlet(np.ones(reward_dim), size=n)
+
+
+def format_weights(w: Sequence[float]) -> str:
+    """``[0.2,0.8]``: weights rounded to 3 decimals, the one way output, labels and legends write them."""
+    return "[" + ",".join(f"{x:g}" for x in np.round(w, 3)) + "]"
