@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -9,6 +11,7 @@ from hypothesis import strategies as st
 
 from sb3_sfgpi import plots
 from sb3_sfgpi.cli import main
+from sb3_sfgpi.cli.compare import merge_comparisons
 from sb3_sfgpi.run_directory import RunDirectory
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -293,6 +296,55 @@ def test_comparison_plots_refuse_what_they_cannot_draw(tmp_path, compare):
     with pytest.raises(ValueError, match="no per-step 'queue'"):
         plots.plot_step_metrics(no_trace, tmp_path)
     assert not list(tmp_path.glob("*.png"))
+
+
+def shifted(compare: dict, by: float) -> dict:
+    """The comparison of another training seed: every mean ``by`` higher, the same stds."""
+    rows = []
+    for row in compare["rows"]:
+        metrics = {k: {**m, "mean": m["mean"] + by} for k, m in row["episode_metrics"].items()}
+        traces = {k: v if k == "time" else {**v, "mean": [x + by for x in v["mean"]]} for k, v in row["traces"].items()}
+        scalarized = None if row["weights"] is None else row["scalarized_discounted"] + by
+        rows.append({**row, "episode_metrics": metrics, "traces": traces, "scalarized_discounted": scalarized})
+    return {**compare, "run_dir": f"seed shifted by {by}", "rows": rows}
+
+
+def test_comparisons_of_several_seeds_merge_into_means_and_pooled_stds(compare):
+    merged = merge_comparisons([shifted(compare, 0.0), shifted(compare, 2.0), shifted(compare, 4.0)])
+    assert merged["merged"] == 3 and len(merged["rows"]) == len(compare["rows"])
+    gpi = merged["rows"][0]
+    assert gpi["episode_metrics"]["vehicle_mean"]["mean"] == pytest.approx(12.0)
+    # pooled over the 3 x n episodes: within-seed std 1, seed means 10, 12, 14 (population variance 8/3)
+    assert gpi["episode_metrics"]["vehicle_mean"]["std"] == pytest.approx(np.sqrt(1.0 + 8 / 3))
+    np.testing.assert_allclose(gpi["traces"]["vehicle_wait_total"]["mean"], np.array(trace(12.0, 1.0)["mean"]))
+    np.testing.assert_allclose(gpi["traces"]["vehicle_wait_total"]["std"], np.sqrt(0.25 + 8 / 3))
+    assert gpi["traces"]["time"] == TIME
+    assert gpi["scalarized_discounted"] == pytest.approx(-10.0 + 2.0)
+    assert gpi["scalarized_discounted_std"] == pytest.approx(np.sqrt(8 / 3))
+    assert merged["rows"][-1]["scalarized_discounted_std"] is None  # a baseline has no weights
+
+
+def test_comparisons_of_other_methods_or_settings_are_not_merged(compare, tmp_path, capsys):
+    fewer = {**compare, "rows": compare["rows"][1:]}
+    with pytest.raises(ValueError, match="different methods or weights"):
+        merge_comparisons([compare, fewer])
+    with pytest.raises(ValueError, match="differ in 'episodes'"):
+        merge_comparisons([{**compare, "episodes": 5}, {**compare, "episodes": 3}])
+    paths = [tmp_path / "a.json", tmp_path / "b.json"]
+    for path, data in zip(paths, [compare, fewer], strict=True):
+        path.write_text(json.dumps(data))
+    assert main(["plot", *map(str, paths), "--kind", "steps", "-o", str(tmp_path / "figs")]) == 2
+    assert "cannot draw" in capsys.readouterr().err
+
+
+def test_plot_draws_several_comparison_files_as_one(compare, tmp_path, figures):
+    paths = [tmp_path / "a.json", tmp_path / "b.json"]
+    for path, by in zip(paths, [0.0, 2.0], strict=True):
+        path.write_text(json.dumps(shifted(compare, by)))
+    assert main(["plot", *map(str, paths), "--kind", "tradeoff", "-o", str(tmp_path / "t.png")]) == 0
+    ax = figures[0]["axes"][0]
+    assert ax["title"] == "per-objective outcome (mean ± std over the episodes of 2 runs)"
+    np.testing.assert_allclose(ax["lines"][0][1], [[41.0, 11.0], [21.0, 21.0], [11.0, 41.0]])  # in the order of w
 
 
 def test_a_seed_that_stopped_early_is_not_drawn_as_if_it_went_on(tmp_path, figures):

@@ -214,6 +214,58 @@ def _traces(result: EpisodeReturns, metrics: list[list[str]]) -> dict[str, Any]:
     return traces
 
 
+#: What the comparisons merged by :func:`merge_comparisons` must share.
+SHARED_SETTINGS = ("format", "domain", "episodes", "seed", "objectives", "episode_metrics", "step_metrics")
+
+
+def merge_comparisons(compares: list[dict[str, Any]]) -> dict[str, Any]:
+    """
+    One comparison from several of the same methods on the same episodes, one per training seed: each row's means
+    are the means over the files, its stds the std over the episodes of all files (pooled), and ``w·G`` gets its std
+    over the files (``scalarized_discounted_std``). ``merged`` counts the files.
+
+    :raises ValueError: comparisons of other settings, or whose methods differ (the message names the first)
+    """
+    first = compares[0]
+    for other in compares[1:]:
+        for key in SHARED_SETTINGS:
+            if other.get(key) != first.get(key):
+                raise ValueError(f"the comparisons differ in {key!r}: {first.get(key)!r} and {other.get(key)!r}")
+        if [_row_key(r) for r in other["rows"]] != [_row_key(r) for r in first["rows"]]:
+            raise ValueError("the comparisons hold different methods or weights; compare each run the same way")
+    rows = [_merged_row([c["rows"][i] for c in compares]) for i in range(len(first["rows"]))]
+    return {**first, "run_dir": [c["run_dir"] for c in compares], "merged": len(compares), "rows": rows}
+
+
+def _row_key(row: dict[str, Any]) -> tuple[Any, ...]:
+    weights = None if row["weights"] is None else tuple(np.round(row["weights"], 6))
+    return row["method"], weights, row["label"] if row["method"] == "baseline" else None
+
+
+def _pooled(stats: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean and std over all episodes of equally many episodes per file, from each file's mean and std."""
+    means, stds = np.array([s["mean"] for s in stats], dtype=float), np.array([s["std"] for s in stats], dtype=float)
+    std = np.sqrt(np.mean(stds**2, axis=0) + np.var(means, axis=0))
+    return {"mean": np.mean(means, axis=0).tolist(), "std": std.tolist()}
+
+
+def _merged_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    first = rows[0]
+    scalarized = [r["scalarized_discounted"] for r in rows]
+    traces = {key: _pooled([r["traces"][key] for r in rows]) for key in first["traces"] if key != "time"}
+    metrics = {key: _pooled([r["episode_metrics"][key] for r in rows]) for key in first["episode_metrics"]}
+    return {
+        **first,
+        "run_dir": [r["run_dir"] for r in rows],
+        "return_discounted": np.mean([r["return_discounted"] for r in rows], axis=0).tolist(),
+        "return_undiscounted": np.mean([r["return_undiscounted"] for r in rows], axis=0).tolist(),
+        "scalarized_discounted": None if first["weights"] is None else float(np.mean(scalarized)),
+        "scalarized_discounted_std": None if first["weights"] is None else float(np.std(scalarized)),
+        "episode_metrics": metrics,
+        "traces": {**first["traces"], **traces},
+    }
+
+
 def format_comparison(compare: dict[str, Any]) -> str:
     """
     A Markdown table of a comparison: per method its episode metrics and its scalarised discounted return
@@ -227,8 +279,8 @@ def format_comparison(compare: dict[str, Any]) -> str:
         for key, _ in metrics:
             m = row["episode_metrics"].get(key)
             cells.append("-" if m is None else f"{m['mean']:.2f} ± {m['std']:.2f}")
-        scalarized = row["scalarized_discounted"]
-        cells.append("-" if scalarized is None else f"{scalarized:.3f}")
+        scalarized, spread = row["scalarized_discounted"], row.get("scalarized_discounted_std")
+        cells.append("-" if scalarized is None else f"{scalarized:.3f}" + (f" ± {spread:.3f}" if spread else ""))
         lines.append("| " + " | ".join(cells) + " |")
     gpi = {tuple(np.round(r["weights"], 6)): r for r in compare["rows"] if r["method"] == "gpi"}
     for row in compare["rows"]:

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from sb3_sfgpi import plots
-from sb3_sfgpi.cli.compare import COMPARE_FORMAT
+from sb3_sfgpi.cli.compare import COMPARE_FORMAT, merge_comparisons
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.common.serialization import read_json
 from sb3_sfgpi.run_directory import SUMMARY_FIELDS, RunDirectory
@@ -25,7 +25,14 @@ def add_parser(sub: Any) -> None:
         help="returns: GPI return over iterations, mean ± std over seeds (run directories); steps, versus, "
         "tradeoff: from a comparison file",
     )
-    plot.add_argument("run_dirs", type=Path, nargs="+", metavar="INPUT", help="run directories, or a comparison file")
+    plot.add_argument(
+        "run_dirs",
+        type=Path,
+        nargs="+",
+        metavar="INPUT",
+        help="run directories, or comparison files (several: one per training seed, drawn as mean ± std over the "
+        "episodes of all)",
+    )
     plot.add_argument(
         "-o", "--output", type=Path, required=True, help="PNG file (returns, tradeoff) or directory (steps, versus)"
     )
@@ -132,12 +139,16 @@ def a_priori_reference(paths: list[Path]) -> plots.Reference:
 
 
 def _from_comparison(args: argparse.Namespace) -> list[Path]:
-    if len(args.run_dirs) != 1:
-        raise UsageError(f"--kind {args.kind} draws one comparison file, got {len(args.run_dirs)} inputs")
-    path = args.run_dirs[0]
-    compare = read_json(path, "comparison") if path.is_file() else None
-    if not isinstance(compare, dict) or compare.get("format") != COMPARE_FORMAT:
-        raise UsageError(f"{path} is not a comparison file (written by sb3-sfgpi compare)")
+    compares = []
+    for path in args.run_dirs:
+        compare = read_json(path, "comparison") if path.is_file() else None
+        if not isinstance(compare, dict) or compare.get("format") != COMPARE_FORMAT:
+            raise UsageError(f"{path} is not a comparison file (written by sb3-sfgpi compare)")
+        compares.append(compare)
+    try:
+        compare = merge_comparisons(compares) if len(compares) > 1 else compares[0]
+    except (KeyError, TypeError, ValueError) as error:
+        raise UsageError(f"cannot draw {', '.join(map(str, args.run_dirs))} together: {error}") from error
     if args.smooth < 1:
         raise UsageError(f"--smooth must be positive, got {args.smooth}")
     draw: dict[str, Callable[[dict[str, Any], Path], Any]] = {

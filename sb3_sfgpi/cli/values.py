@@ -27,4 +27,3 @@ def key_values(items: Sequence[str], option: str) -> dict[str, Any]:
 def check_weights(values: Sequence[float], name: str) -> list[float]:
     """Weights of unknown length (checked against the domain later): non-negative, finite, summing to 1."""
     return validate_weights(values, len(values), name).tolist()
-
