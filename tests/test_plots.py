@@ -324,6 +324,13 @@ def test_comparisons_of_several_seeds_merge_into_means_and_pooled_stds(compare):
     assert merged["rows"][-1]["scalarized_discounted_std"] is None  # a baseline has no weights
 
 
+def test_comparisons_merge_row_by_row_whatever_their_order(compare):
+    reordered = {**shifted(compare, 2.0), "rows": shifted(compare, 2.0)["rows"][::-1]}
+    merged = merge_comparisons([shifted(compare, 0.0), reordered])
+    assert [row["label"] for row in merged["rows"]] == [row["label"] for row in compare["rows"]]
+    assert merged["rows"][3]["episode_metrics"]["vehicle_mean"]["mean"] == pytest.approx(23.0)  # the fixed learner
+
+
 def test_comparisons_of_other_methods_or_settings_are_not_merged(compare, tmp_path, capsys):
     fewer = {**compare, "rows": compare["rows"][1:]}
     with pytest.raises(ValueError, match="different methods or weights"):

@@ -231,9 +231,12 @@ def merge_comparisons(compares: list[dict[str, Any]]) -> dict[str, Any]:
         for key in SHARED_SETTINGS:
             if other.get(key) != first.get(key):
                 raise ValueError(f"the comparisons differ in {key!r}: {first.get(key)!r} and {other.get(key)!r}")
-        if [_row_key(r) for r in other["rows"]] != [_row_key(r) for r in first["rows"]]:
-            raise ValueError("the comparisons hold different methods or weights; compare each run the same way")
-    rows = [_merged_row([c["rows"][i] for c in compares]) for i in range(len(first["rows"]))]
+    by_key = [{_row_key(r): r for r in c["rows"]} for c in compares]
+    if any(
+        len(rows) != len(c["rows"]) or rows.keys() != by_key[0].keys() for rows, c in zip(by_key, compares, strict=True)
+    ):
+        raise ValueError("the comparisons hold different methods or weights; compare each run the same way")
+    rows = [_merged_row([rows[_row_key(row)] for rows in by_key]) for row in first["rows"]]
     return {**first, "run_dir": [c["run_dir"] for c in compares], "merged": len(compares), "rows": rows}
 
 
