@@ -124,6 +124,7 @@ def test_queue_and_co2_rewards_are_what_sumo_measures(make_env, listen):
         ({"objectives": ["co2", "co2"]}, "distinct"),
         ({"objectives": "co2"}, "non-empty list"),
         ({"reward_scale": {"nox": 1.0}}, "unknown objective 'nox'"),
+        ({"reward_scale": {"co2": -1.0}}, "positive finite"),  # not selected, still wrong
         ({"reward_scale": [1.0, 2.0, 3.0]}, "2 of them"),
         ({"action_mode": "choose"}, "action_mode"),
         ({"begin_time": -1}, "begin_time"),
@@ -178,3 +179,9 @@ def test_masfols_trains_on_the_grid_through_the_cli(tmp_path, capsys):
     assert checkpoint["n_policies"] == len(policy_set) == evaluation[-1]["n_policies"] >= 4
     assert main(["evaluate", str(out), "--w", "0.5", "0.5"]) == 0
     assert "objectives: vehicle_waiting, co2" in capsys.readouterr().out
+
+
+def test_the_cli_refuses_a_network_that_is_not_there(tmp_path, capsys):
+    argv = ["train", "traffic", "--out", str(tmp_path / "r"), "--env", f"net_file={tmp_path / 'none.net.xml'}"]
+    assert main(argv) == 2
+    assert "does not exist" in capsys.readouterr().err

@@ -95,17 +95,21 @@ def reward_scales(scale: Any, names: Sequence[str]) -> np.ndarray:
         unknown = [k for k in scale if k not in MENU]
         if unknown:
             raise ValueError(f"reward_scale names an unknown objective {unknown[0]!r}; the menu: {', '.join(MENU)}")
+        bad = [k for k, v in scale.items() if not _positive_finite(v)]  # every factor given, selected or not
+        if bad:
+            raise ValueError(f"reward_scale of {bad[0]!r} must be a positive finite number, got {scale[bad[0]]!r}")
         values = [scale.get(n, 1.0) for n in names]
     elif isinstance(scale, (list, tuple, np.ndarray)):
         values = list(scale)
     else:
         values = [scale] * len(names)
-    ok = len(values) == len(names) and all(
-        not isinstance(v, bool) and isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0 for v in values
-    )
-    if not ok:
+    if len(values) != len(names) or not all(map(_positive_finite, values)):
         raise ValueError(
             f"reward_scale must be a positive finite number, {len(names)} of them ({', '.join(names)}) or a mapping "
             f"objective -> factor, got {scale!r}"
         )
     return np.array(values, dtype=np.float64)
+
+
+def _positive_finite(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.number)) and 0 < value < np.inf

@@ -96,11 +96,11 @@ class DomainPreset:
         """
         The domain's env with ``env_kwargs``.
 
-        :raises UsageError: the env refuses them (an unknown argument, a value out of range)
+        :raises UsageError: the env refuses them (an unknown argument, a value out of range, a file that is not there)
         """
         try:
             return self.make_env(**env_kwargs)
-        except (TypeError, ValueError) as error:
+        except (TypeError, ValueError, FileNotFoundError) as error:
             raise UsageError(f"the {self.name} env refuses {env_kwargs}: {error}") from error
 
     def objective_names(self, env_kwargs: dict[str, Any]) -> list[str] | None:
