@@ -421,14 +421,12 @@ class TrafficSignalEnv(ParallelEnv):
         agent_mode = self.signal_control == "agent"
         time = self._time
         if agent_mode:
-            greens = [
-                self._requested_green(a, ctl, actions)
-                for a, ctl in zip(self.possible_agents, self._controllers, strict=True)
-            ]
+            acts = [self._checked_action(a, actions) for a in self.possible_agents]
+            apply = SignalController.request if self.action_mode == "phase" else SignalController.act
         try:
             if agent_mode:
-                for a, ctl, green in zip(self.possible_agents, self._controllers, greens, strict=True):
-                    state = ctl.request(green, time)
+                for a, ctl, act in zip(self.possible_agents, self._controllers, acts, strict=True):
+                    state = None if act is None else apply(ctl, act, time)
                     if state is not None:
                         self._set_state(a, state)
             n = min(self.delta_time, self._end - time)
@@ -471,10 +469,10 @@ class TrafficSignalEnv(ParallelEnv):
             self.agents = []
         return obs, rewards, terminations, truncations, infos
 
-    def _requested_green(self, agent: str, controller: SignalController, actions: Mapping[str, Any]) -> int:
-        """The green ``agent``'s action asks for (the current one when it has no action)."""
+    def _checked_action(self, agent: str, actions: Mapping[str, Any]) -> int | None:
+        """``agent``'s action as an int (``None`` when it has none: it keeps its green)."""
         if agent not in actions:
-            return controller.green
+            return None
         act, n = actions[agent], self.action_spaces[agent].n
         try:
             k = int(act)
@@ -483,9 +481,7 @@ class TrafficSignalEnv(ParallelEnv):
         if k != act or not 0 <= k < n:
             meaning = "0 (keep) or 1 (change)" if self.action_mode == "change" else f"a green phase in 0..{n - 1}"
             raise ValueError(f"action of {agent} must be {meaning}, got {act!r}")
-        if self.action_mode == "phase":
-            return k
-        return (controller.green + 1) % len(controller.program.greens) if k else controller.green
+        return k
 
     def _died(self, exc: BaseException) -> NoReturn:
         time = self._time
