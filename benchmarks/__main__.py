@@ -2,7 +2,7 @@
 
     python -m benchmarks                 # everything (about 15 minutes on 2 cores)
     python -m benchmarks --quick         # shorter runs, under two minutes
-    python -m benchmarks gpi ols         # only some (names: gpi, training, ols, traffic, memory, optimum)
+    python -m benchmarks gpi ols         # only some (names: gpi, training, ols, traffic, memory, optimum, sharing)
     python -m benchmarks --output results.md
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
@@ -31,6 +31,7 @@ BENCHMARKS = {
     "traffic": "benchmarks.bench_traffic",
     "memory": "benchmarks.bench_memory",
     "optimum": "benchmarks.bench_optimum",
+    "sharing": "benchmarks.bench_sharing",
 }
 
 

@@ -1,8 +1,9 @@
-"""MA-SFOLS (the paper's Algorithm 1) as an SB3 callback orchestrating independent per-agent learners.
+"""MA-SFOLS (the paper's Algorithm 1) as an SB3 callback orchestrating the learners of a multi-agent runner.
 
 :class:`OLSCallback` is given to :meth:`MultiAgentRunner.learn <sb3_sfgpi.multiagent.MultiAgentRunner.learn>`.
 The runner owns the step loop (every agent's SFDQN acts, stores and trains); the callback decides the weights.
-An iteration is: every agent trains a fresh learner for the weights the schedule gave it, for
+An iteration is: every learner (one per agent, or one that all agents share) starts afresh for the weights the
+schedule gave it and trains for
 ``steps_per_iteration`` joint steps; then :meth:`OLSCallback._end_iteration` runs the rest of Algorithm 1 —
 the values of the new policies, OLS and Π updated, GPI evaluated on the test weights, the checkpoint written, the
 next weights taken from the schedule. The run stops when the schedule ends (OLS: Π is a CCS) or after
@@ -78,10 +79,10 @@ class ValueEstimation:
     """
     How the value vector ``V^π`` of each new policy is estimated (Monte Carlo in the multi-agent env).
 
-    :param mode: ``"joint"``: the new learners act together and an agent's own discounted return is the value
-        of its policy; ``"shared"``: each new policy is run by every agent at once and its value is the mean
-        discounted return over the agents (comparable between policies learned at different places of a
-        heterogeneous env, e.g. different intersections)
+    :param mode: ``"joint"``: the new learners act together and the discounted return of a learner's agents (its
+        mean over them, when agents share a learner) is the value of its policy; ``"shared"``: each new policy is
+        run by every agent at once and its value is the mean discounted return over the agents (comparable between
+        policies learned at different places of a heterogeneous env, e.g. different intersections)
     :param episodes: episodes of the estimate (per policy in ``"shared"`` mode)
     """
 
@@ -130,7 +131,7 @@ class OLSCallback(BaseCallback):
     GPI evaluation.
 
     :param schedule: where the weights come from (:class:`~sb3_sfgpi.schedules.OLSSchedule` for MA-SFOLS)
-    :param steps_per_iteration: joint env steps every agent trains for its weights in one iteration
+    :param steps_per_iteration: joint env steps every learner trains for its weights in one iteration
     :param evaluation: how GPI is evaluated after every iteration
     :param values: how the values of new policies are estimated
     :param validation: which new policies join Π (default: all of them)
@@ -239,9 +240,9 @@ class OLSCallback(BaseCallback):
         if self._iteration_bar is not None:
             self._iteration_bar.close()
         self.model.end_iteration()
-        for agent, value in self._estimate_values().items():
-            if self.schedule.add(value, self.weights[agent]):  # a new value: the policy is a candidate for Π
-                self._admit(agent, value)
+        for name, value in self._estimate_values().items():
+            if self.schedule.add(value, self.weights[name]):  # a new value: the policy is a candidate for Π
+                self._admit(name, value)
         self._save_policy_set()  # before the evaluation: its worker processes load Π
         self.history.append(self._evaluate_gpi())
         self.iteration += 1
@@ -256,14 +257,14 @@ class OLSCallback(BaseCallback):
     def _next_weights(self) -> AgentWeights | None:
         """The next weights from the schedule (top of the OLS queue, Dirichlet(1) beyond it), None when it ended."""
         rng = np.random.default_rng(derive_seed(self.model.seed, "random-weights", self.iteration))
-        return self.schedule.next_weights(self.model.agents, rng)
+        return self.schedule.next_weights(self.model.learner_names, rng)
 
     def _start_iteration(self, weights: AgentWeights) -> None:
         self.weights = weights
         self._iteration_start = self.model.num_timesteps
         init = None
         if self.transfer and len(self.policy_set):
-            init = {agent: self._best_network(w) for agent, w in weights.items()}
+            init = {name: self._best_network(w) for name, w in weights.items()}
         self.model.start_iteration(weights, self.iteration, self.steps_per_iteration, init_networks=init)
         if self.progress_bar:
             self._iteration_bar = tqdm(
@@ -275,29 +276,32 @@ class OLSCallback(BaseCallback):
         return self.policy_set.networks[int(np.argmax([np.dot(w, v) for v in values]))]
 
     def _estimate_values(self) -> dict[str, np.ndarray]:
-        """Monte-Carlo estimate of ``V^π`` of every agent's new policy (see :class:`ValueEstimation`)."""
+        """Monte-Carlo estimate of ``V^π`` of every new policy (see :class:`ValueEstimation`), by learner name."""
         runner, episodes = self.model, self.values.episodes
         seed = derive_seed(runner.seed, "value", self.iteration)  # the same episodes for every policy
-        if self.values.mode == "joint":
+        if self.values.mode == "joint":  # the learners act together; a policy's value is its agents' mean return
             returns = runner.rollout(runner.learner_policy(), episodes, seed)
-            return {agent: returns.mean_discounted(agent) for agent in runner.agents}
+            return {
+                name: np.mean([returns.mean_discounted(agent) for agent in agents], axis=0)
+                for name, agents in runner.groups.items()
+            }
         values = {}
-        for agent in runner.agents:
-            returns = runner.rollout(runner.learner_policy(agent), episodes, seed)
-            values[agent] = np.mean([returns.mean_discounted(a) for a in returns.discounted], axis=0)
+        for name in runner.learner_names:
+            returns = runner.rollout(runner.learner_policy(name), episodes, seed)
+            values[name] = np.mean([returns.mean_discounted(a) for a in returns.discounted], axis=0)
         return values
 
-    def _admit(self, agent: str, value: np.ndarray) -> None:
-        """Add ``agent``'s new policy to Π, unless GPI does worse with it on the validation weights."""
+    def _admit(self, name: str, value: np.ndarray) -> None:
+        """Add learner ``name``'s new policy to Π, unless GPI does worse with it on the validation weights."""
         validate = self.validation.n_weights > 0 and len(self.policy_set) > 0
         before = self._gpi_validation_score() if validate else 0.0
-        self.policy_set.add(self.model.learners[agent], value=value, agent=agent, iteration=self.iteration + 1)
+        self.policy_set.add(self.model.learners[name], value=value, agent=name, iteration=self.iteration + 1)
         self._validation_score = None  # Π changed
         if validate and (after := self._gpi_validation_score()) < before:
             self.policy_set.pop()
             self._validation_score = before
             if self.verbose:
-                print(f"{agent}'s policy left out of Π: GPI on the validation weights {after:.4f} with it, "
+                print(f"{name}'s policy left out of Π: GPI on the validation weights {after:.4f} with it, "
                       f"{before:.4f} without")  # fmt: skip
 
     def _gpi_validation_score(self) -> float:
@@ -398,8 +402,10 @@ class OLSCallback(BaseCallback):
         self.model.num_timesteps = state["timesteps"]
         if state["next_weights"] is None:
             return None
-        if set(state["next_weights"]) != set(self.model.agents):
-            raise ValueError(f"checkpoint of {self.run_dir}: 'next_weights' is not for the agents {self.model.agents}")
+        if set(state["next_weights"]) != set(self.model.learner_names):
+            raise ValueError(
+                f"checkpoint of {self.run_dir}: 'next_weights' is not for the learners {self.model.learner_names}"
+            )
         return {agent: np.asarray(w, dtype=np.float64) for agent, w in state["next_weights"].items()}
 
     def _on_training_end(self) -> None:

@@ -38,14 +38,16 @@ SETTINGS = (
     "gpi_set",
     "transfer",
     "validation_weights",
+    "sharing",
 )
 #: Settings that runs written before they existed lack, with the value that reproduces those runs.
-SETTING_DEFAULTS = {"validation_weights": 0}
+SETTING_DEFAULTS = {"validation_weights": 0, "sharing": "independent"}
 
 
 class MASFOLS:
     """
-    MA-SFOLS + GPI over a PettingZoo ParallelEnv with vector rewards: one SFDQN per agent, OLS over the weights.
+    MA-SFOLS + GPI over a PettingZoo ParallelEnv with vector rewards: one SFDQN per agent (or one that all agents
+    share), OLS over the weights.
 
     :param env: the env (homogeneous agents, Discrete actions, ``reward_space(agent)``)
     :param policy: the learners' SFDQN policy, ``"TabularPolicy"`` or ``"MlpPolicy"``
@@ -66,6 +68,10 @@ class MASFOLS:
     :param validation_weights: a new policy joins Π only if GPI does at least as well with it on the simplex
         extrema and this many Dirichlet(1) validation weights (see :class:`~sb3_sfgpi.callbacks.PolicyValidation`;
         0: every new policy joins, as in the paper; not for fixed weights)
+    :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (every iteration
+        trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
+        learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the
+        agents' transitions; for many homogeneous agents). See :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`
     :param eval_workers: evaluate GPI in this many worker processes (0: in this process)
     :param eval_env_fn: picklable env constructor of the workers (required when ``eval_workers > 0``)
     :param eval_env_kwargs: its keyword arguments
@@ -90,6 +96,7 @@ class MASFOLS:
         gpi_set: str = "all",
         transfer: bool = False,
         validation_weights: int = 0,
+        sharing: str = "independent",
         eval_workers: int = 0,
         eval_env_fn: Callable[..., ParallelEnv] | None = None,
         eval_env_kwargs: Mapping[str, Any] | None = None,
@@ -103,6 +110,7 @@ class MASFOLS:
             seed=seed,
             gamma=learner_kwargs.get("gamma", 0.99),
             tensorboard_log=None if run_dir is None else str(RunDirectory(run_dir).tensorboard_dir),
+            sharing=sharing,
         )
         self.runner.check_learner()
         fixed = not isinstance(weights, str)
@@ -121,9 +129,11 @@ class MASFOLS:
             "gpi_set": gpi_set,
             "transfer": transfer,
             "validation_weights": validation_weights,
+            "sharing": sharing,
         }
+        own = fixed and sharing == "independent"  # fixed weights: each agent by GPI over its own policies
         evaluation = EvaluationConfig(
-            test_weights, eval_episodes, "own" if fixed else "shared", gpi_set, eval_workers,
+            test_weights, eval_episodes, "own" if own else "shared", gpi_set, eval_workers,
             eval_env_fn, dict(eval_env_kwargs or {}),
         )  # fmt: skip
         self.callback = OLSCallback(

@@ -14,7 +14,7 @@ import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from gymnasium import spaces
@@ -37,27 +37,31 @@ LearnerFactory = Callable[[str, VecEnv, np.ndarray, int], SFDQN]
 
 class AgentVecEnv(VecEnv):
     """
-    One agent's view of a shared ParallelEnv, as the single-env VecEnv its SFDQN learner expects.
+    The agents of one learner, in a shared ParallelEnv, as the VecEnv their SFDQN expects: one slot per agent.
 
-    It is never stepped by the learner: the runner steps the shared env for all agents and hands each
-    learner its transition. ``reset()`` returns the agent's current observation.
+    With independent learners each agent has a view of its own (one slot); with parameter sharing one learner has
+    all the agents as its slots (SB3's ``n_envs``). It is never stepped by the learner: the runner steps the shared
+    env for all agents and hands each learner its transitions. ``reset()`` returns the agents' current
+    observations.
 
     :param env: the shared env
-    :param agent: the agent's name
+    :param agents: the agent's name, or the names of the agents sharing the learner
     """
 
     vector_rewards = True
     render_mode = None  # the shared env is rendered by the runner's owner, not through a view
 
-    def __init__(self, env: ParallelEnv, agent: str):
-        super().__init__(1, env.observation_space(agent), env.action_space(agent))
-        self.agent = agent
-        self.reward_space = env.reward_space(agent)  # type: ignore[attr-defined]
+    def __init__(self, env: ParallelEnv, agents: str | list[str]):
+        self.agents = [agents] if isinstance(agents, str) else list(agents)
+        first = self.agents[0]
+        super().__init__(len(self.agents), env.observation_space(first), env.action_space(first))
+        self.agent = first if len(self.agents) == 1 else f"{first}..{self.agents[-1]}"
+        self.reward_space = env.reward_space(first)  # type: ignore[attr-defined]
         self.current_obs: np.ndarray | None = None
 
     def reset(self) -> np.ndarray:
         assert self.current_obs is not None, "the runner must reset the shared env first"
-        return self.current_obs[None]
+        return self.current_obs
 
     def step_async(self, actions: np.ndarray) -> None:
         raise RuntimeError(f"{self.agent}'s view cannot be stepped alone: MultiAgentRunner steps the shared env")
@@ -69,7 +73,7 @@ class AgentVecEnv(VecEnv):
         pass
 
     def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
-        return [getattr(self, attr_name)]
+        return [getattr(self, attr_name)] * len(list(self._get_indices(indices)))
 
     def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
         setattr(self, attr_name, value)
@@ -78,10 +82,10 @@ class AgentVecEnv(VecEnv):
         raise RuntimeError(f"{self.agent}'s view has no env methods")
 
     def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
-        return [False]
+        return [False] * len(list(self._get_indices(indices)))
 
     def get_images(self) -> list[np.ndarray | None]:
-        return [None]
+        return [None] * self.num_envs
 
 
 def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
@@ -113,18 +117,49 @@ def _remove_interrupted_logs(directory: str, log_name: str) -> None:
             shutil.rmtree(folder)
 
 
+class Transitions(NamedTuple):
+    """A joint step as one learner sees it: its live agents (and their slots) and what the env returned."""
+
+    agents: list[str]
+    slots: list[int]
+    buffer_actions: np.ndarray
+    obs: dict[str, Any]
+    rewards: dict[str, Any]
+    terminations: dict[str, bool]
+    truncations: dict[str, bool]
+    infos: dict[str, dict]
+
+
+def _replaced(rows: np.ndarray, slots: list[int], values: np.ndarray) -> np.ndarray:
+    """A copy of ``rows`` with ``rows[slots] = values``."""
+    rows = rows.copy()
+    rows[slots] = values
+    return rows
+
+
+#: The name of the one learner all agents share (``sharing="shared"``).
+SHARED = "shared"
+
+
 class MultiAgentRunner:
     """
-    Independent learners, one per agent, trained in lockstep on a shared PettingZoo ParallelEnv.
+    Learners trained in lockstep on a shared PettingZoo ParallelEnv: one per agent (independent learners), or one
+    that every agent feeds (parameter sharing).
 
     Agents whose episode ended (terminated or truncated) store no further transitions until the shared
     env is reset, which happens when no agent is left. A time-limit truncation is stored as such
     (it bootstraps), a termination is not.
 
+    With ``sharing="shared"`` the agents are the slots of their learner's view (SB3's ``n_envs``): one batched
+    forward pass picks every agent's action, every live agent's transition goes to the one replay buffer, and the
+    learner trains as an SB3 algorithm on ``n_envs`` envs does (``train_freq`` and ``gradient_steps`` per joint
+    step, ``learning_starts`` and ``target_update_interval`` in transitions). Learners are named by
+    :attr:`learner_names`: the agents' names, or :data:`SHARED`.
+
     :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents; composite
         observation spaces (``Tuple``, ``Dict``) are flattened
         (:class:`~sb3_sfgpi.common.parallel_wrappers.FlattenObservations`)
-    :param learner_factory: builds an agent's learner; see :func:`default_learner_factory`
+    :param learner_factory: builds a learner; see :func:`default_learner_factory`
     :param seed: seed of the run (learners and resets derive theirs from it)
     :param gamma: discount of the Monte-Carlo evaluation (default: the learners')
     :param learner_callback: builds a callback for each new learner (e.g. a checkpoint callback)
@@ -132,6 +167,7 @@ class MultiAgentRunner:
     :param verbose: verbosity of the runner-level logger
     :param log_interval: a learner writes its logs (TensorBoard, stdout) every ``log_interval`` of its episodes, as
         in SB3's ``learn(log_interval=...)``, and at the end of its iteration
+    :param sharing: ``"independent"``: one learner per agent; ``"shared"``: one learner for all agents
     """
 
     def __init__(
@@ -144,10 +180,14 @@ class MultiAgentRunner:
         tensorboard_log: str | None = None,
         verbose: int = 0,
         log_interval: int = 4,
+        sharing: str = "independent",
     ):
         if isinstance(log_interval, bool) or not isinstance(log_interval, int) or log_interval < 1:
             raise ValueError(f"log_interval must be a positive integer, got {log_interval!r}")
+        if sharing not in ("independent", "shared"):
+            raise ValueError(f"sharing must be 'independent' or 'shared', got {sharing!r}")
         self.log_interval = log_interval
+        self.sharing = sharing
         self.env = env = flattened(env)
         self.agents: list[str] = list(env.possible_agents)
         self._time_limit = time_limit(env)
@@ -158,8 +198,13 @@ class MultiAgentRunner:
         self.learner_callback = learner_callback
         self.tensorboard_log = tensorboard_log
         self.verbose = verbose
-        self.views = {agent: AgentVecEnv(env, agent) for agent in self.agents}
         self._check_homogeneous()
+        self._reward_dim = int(env.reward_space(self.agents[0]).shape[0])  # type: ignore[attr-defined]
+        #: learner name -> the agents it acts for, in the order of its slots
+        self.groups: dict[str, list[str]] = (
+            {SHARED: self.agents} if sharing == "shared" else {agent: [agent] for agent in self.agents}
+        )
+        self.views = {name: AgentVecEnv(env, agents) for name, agents in self.groups.items()}
         self.learners: dict[str, SFDQN] = {}
         self._learner_callbacks: dict[str, BaseCallback] = {}
         self._gamma = gamma
@@ -168,22 +213,27 @@ class MultiAgentRunner:
         self.logger: Logger = folderless_logger(verbose)
         self._start_time = time.time()
 
+    @property
+    def learner_names(self) -> list[str]:
+        """The names of the learners of an iteration (the keys of the weights it trains)."""
+        return list(self.groups)
+
     def _check_homogeneous(self) -> None:
-        first = self.views[self.agents[0]]
-        for agent, view in self.views.items():
+        env, first = self.env, self.agents[0]
+        for agent in self.agents:
             for kind in ("observation_space", "action_space", "reward_space"):
-                if getattr(view, kind) != getattr(first, kind):
+                if getattr(env, kind)(agent) != getattr(env, kind)(first):
                     raise ValueError(
                         f"MA-SFOLS shares policies between agents: all agents need the same spaces, but the "
-                        f"{kind.replace('_', ' ')} of {agent!r} is {getattr(view, kind)} and of {self.agents[0]!r} "
-                        f"{getattr(first, kind)}"
+                        f"{kind.replace('_', ' ')} of {agent!r} is {getattr(env, kind)(agent)} and of {first!r} "
+                        f"{getattr(env, kind)(first)}"
                     )
-            if not isinstance(view.action_space, spaces.Discrete):
-                raise ValueError(f"SFDQN needs Discrete actions, got {view.action_space}")
+        if not isinstance(env.action_space(first), spaces.Discrete):
+            raise ValueError(f"SFDQN needs Discrete actions, got {env.action_space(first)}")
 
     @property
     def reward_dim(self) -> int:
-        return int(self.views[self.agents[0]].reward_space.shape[0])
+        return self._reward_dim
 
     @property
     def gamma(self) -> float:
@@ -191,7 +241,7 @@ class MultiAgentRunner:
             return self._gamma
         if not self.learners:
             raise ValueError("gamma is known once learners exist; pass gamma= to the runner")
-        return self.learners[self.agents[0]].gamma
+        return next(iter(self.learners.values())).gamma
 
     def get_env(self) -> ParallelEnv:
         """The shared env (what SB3 callbacks see as ``training_env``)."""
@@ -203,16 +253,18 @@ class MultiAgentRunner:
 
     def check_learner(self) -> None:
         """
-        Build one learner (the first agent's, for uniform weights) and drop it, so that bad learner options are
+        Build one learner (the first one's, for uniform weights) and drop it, so that bad learner options are
         refused before any training.
 
         :raises ValueError: an option the learners do not take, or one out of range
         """
-        agent = self.agents[0]
+        name = self.learner_names[0]
         try:
-            self.learner_factory(agent, self.views[agent], np.full(self.reward_dim, 1 / self.reward_dim), 0)
+            learner = self.learner_factory(name, self.views[name], np.full(self.reward_dim, 1 / self.reward_dim), 0)
         except TypeError as error:  # an unknown keyword argument
             raise ValueError(f"bad learner options: {error}") from error
+        if learner.n_envs > 1 and learner.optimize_memory_usage:
+            raise ValueError("a learner shared by several agents needs optimize_memory_usage=False")
 
     def start_iteration(
         self,
@@ -222,85 +274,83 @@ class MultiAgentRunner:
         init_networks: dict[str, nn.Module] | None = None,
     ) -> None:
         """
-        Give every agent a new learner for its weights and reset the shared env.
+        Give every learner name a new learner for its weights and reset the shared env.
 
-        Everything an iteration does depends only on ``(seed, iteration, agent)``, the weights and the
+        Everything an iteration does depends only on ``(seed, iteration, learner name)``, the weights and the
         initial networks, so a resumed run repeats an interrupted iteration exactly.
 
-        :param weights: agent -> preference weights
+        :param weights: learner name (:attr:`learner_names`) -> preference weights
         :param iteration: index of the iteration (for seeds and log names)
-        :param total_timesteps: env steps the iteration will run (for the learners' schedules)
-        :param init_networks: agent -> SF network to start from (transfer), or None to start fresh
+        :param total_timesteps: joint env steps the iteration will run (for the learners' schedules)
+        :param init_networks: learner name -> SF network to start from (transfer), or None to start fresh
         """
         self.iteration = iteration
         self._close_learners()
-        for agent in self.agents:
+        for name in self.learner_names:
             learner = self.learner_factory(
-                agent, self.views[agent], weights[agent], derive_seed(self.seed, iteration, agent)
+                name, self.views[name], weights[name], derive_seed(self.seed, iteration, name)
             )
-            if init_networks and agent in init_networks:
+            if init_networks and name in init_networks:
                 if learner.optimistic_init:
                     raise ValueError("transfer (init_networks) and optimistic_init exclude each other: both set ψ")
-                learner.policy.sf_net.load_state_dict(init_networks[agent].state_dict())
-                learner.policy.sf_net_target.load_state_dict(init_networks[agent].state_dict())
+                learner.policy.sf_net.load_state_dict(init_networks[name].state_dict())
+                learner.policy.sf_net_target.load_state_dict(init_networks[name].state_dict())
             if learner.train_freq.unit != TrainFrequencyUnit.STEP:  # type: ignore[union-attr]
                 raise ValueError("the multi-agent runner supports train_freq in steps only")
-            self.learners[agent] = learner
+            self.learners[name] = learner
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
-        for agent, learner in self.learners.items():
-            log_name = f"{agent}_iter{iteration + 1:03d}"  # iterations are named from 1
+        for name, learner in self.learners.items():
+            log_name = f"{name}_iter{iteration + 1:03d}"  # iterations are named from 1
             if self.tensorboard_log is not None:
                 learner.tensorboard_log = self.tensorboard_log
                 _remove_interrupted_logs(self.tensorboard_log, log_name)
             else:  # SB3's own logger would make a folder in the temporary directory for every learner
                 learner.set_logger(folderless_logger(learner.verbose))
             _, callback = learner._setup_learn(
-                total_timesteps,
-                self.learner_callback(agent) if self.learner_callback else None,
+                total_timesteps * learner.n_envs,  # in transitions, as SB3 counts them
+                self.learner_callback(name) if self.learner_callback else None,
                 reset_num_timesteps=True,
                 tb_log_name=log_name,
             )
             callback.on_training_start(locals(), globals())
             callback.on_rollout_start()
-            self._learner_callbacks[agent] = callback
+            self._learner_callbacks[name] = callback
 
     def reset_env(self, seed: int | None = None) -> None:
-        """Reset the shared env and hand every learner its first observation (training continues from there)."""
+        """Reset the shared env and hand every learner its first observations (training continues from there)."""
         obs, _ = self.env.reset(seed=seed)
         self._episode_steps = 0
-        for agent in self.agents:
-            batched = np.asarray(obs[agent])[None]
-            self.views[agent].current_obs = batched[0]
-            if agent in self.learners:
-                self.learners[agent]._last_obs = batched  # type: ignore[assignment]
-                self.learners[agent]._last_original_obs = batched  # type: ignore[assignment]
+        for name, agents in self.groups.items():
+            batched = np.stack([np.asarray(obs[agent]) for agent in agents])
+            self.views[name].current_obs = batched
+            if name in self.learners:
+                self.learners[name]._last_obs = batched.copy()  # type: ignore[assignment]
+                self.learners[name]._last_original_obs = batched  # type: ignore[assignment]
 
     def step(self) -> bool:
         """
-        One joint step: every live agent acts, stores its transition and trains when due.
+        One joint step: every live agent acts, its learner stores the transition and trains when due.
 
         :return: False if a learner's callback asked to stop
         """
-        actions, buffer_actions = {}, {}
-        for agent in self.env.agents:
-            learner = self.learners[agent]
-            action, buffer_action = learner._sample_action(learner.learning_starts, None, 1)
-            actions[agent], buffer_actions[agent] = int(action[0]), buffer_action
+        actions, sampled = {}, {}
+        live_agents = set(self.env.agents)
+        for name, agents in self.groups.items():
+            live = [slot for slot, agent in enumerate(agents) if agent in live_agents]
+            if live:
+                learner = self.learners[name]
+                action, buffer_action = learner._sample_action(learner.learning_starts, None, learner.n_envs)
+                actions.update({agents[slot]: int(action[slot]) for slot in live})
+                sampled[name] = (live, buffer_action)
         obs, rewards, terminations, truncations, infos = self.env.step(actions)
         self.num_timesteps += 1
         self._episode_steps += 1
         self._check_truncations(terminations, truncations)
         keep_going = True
-        for agent in actions:
-            keep_going &= self._learner_step(
-                agent,
-                buffer_actions[agent],
-                obs[agent],
-                rewards[agent],
-                terminations[agent],
-                truncations[agent],
-                infos[agent],
-            )
+        for name, (live, buffer_action) in sampled.items():
+            agents = [self.groups[name][slot] for slot in live]
+            transitions = Transitions(agents, live, buffer_action[live], obs, rewards, terminations, truncations, infos)
+            keep_going &= self._learner_step(name, transitions)
         if not self.env.agents:
             self.reset_env()
         return keep_going
@@ -319,63 +369,54 @@ class MultiAgentRunner:
                 stacklevel=3,
             )
 
-    def _learner_step(
-        self,
-        agent: str,
-        buffer_action: np.ndarray,
-        obs: Any,
-        reward: Any,
-        terminated: bool,
-        truncated: bool,
-        info: dict,
-    ) -> bool:
-        learner = self.learners[agent]
-        callback = self._learner_callbacks[agent]
-        done = terminated or truncated
-        info = dict(info)
-        monitor = self._monitors.setdefault(agent, [np.zeros(self.reward_dim), 0])
-        monitor[0] = monitor[0] + reward
-        monitor[1] += 1
-        if done:
-            info["terminal_observation"] = obs
-            info["TimeLimit.truncated"] = truncated and not terminated
-            info["episode"] = {"r_vec": monitor[0], "l": monitor[1], "t": round(time.time() - self._start_time, 6)}
-            del self._monitors[agent]
-        learner.num_timesteps += 1
+    def _learner_step(self, name: str, step: Transitions) -> bool:
+        """Hand learner ``name`` the transitions of its live agents, as SB3's ``collect_rollouts`` would."""
+        learner, callback = self.learners[name], self._learner_callbacks[name]
+        next_obs = np.stack([np.asarray(step.obs[agent]) for agent in step.agents])
+        rewards = np.stack([np.asarray(step.rewards[agent], dtype=np.float32) for agent in step.agents])
+        dones = np.array([step.terminations[agent] or step.truncations[agent] for agent in step.agents])
+        infos = [self._monitored_info(agent, step) for agent in step.agents]
+        learner.num_timesteps += len(step.agents)
         callback.update_locals(locals())
         keep_going = callback.on_step()
-        learner._update_info_buffer([info], np.array([done]))
-        learner._store_transition(
-            learner.replay_buffer,
-            buffer_action,
-            np.asarray(obs)[None],
-            np.asarray(reward, dtype=np.float32)[None],
-            np.array([done]),
-            [info],
-        )
+        learner._update_info_buffer(infos, dones)
+        timeouts = np.array([info.get("TimeLimit.truncated", False) for info in infos])
+        last_obs = learner._last_obs
+        learner.replay_buffer.add_rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts)
+        learner._last_obs = next_obs if len(step.slots) == learner.n_envs else _replaced(last_obs, step.slots, next_obs)
         learner._update_current_progress_remaining(learner.num_timesteps, learner._total_timesteps)
         learner._on_step()
-        if done:
-            learner._episode_num += 1
-            if learner._episode_num % self.log_interval == 0:
-                learner.dump_logs()  # SB3's log_interval: a point of the learning curve
-        if (
-            learner.num_timesteps > learner.learning_starts
-            and learner.num_timesteps % learner.train_freq.frequency == 0
-        ):  # type: ignore[union-attr]
+        episodes_before, learner._episode_num = learner._episode_num, learner._episode_num + int(dones.sum())
+        if learner._episode_num // self.log_interval > episodes_before // self.log_interval:
+            learner.dump_logs()  # SB3's log_interval: a point of the learning curve (at most one per joint step)
+        if learner.num_timesteps > learner.learning_starts and learner._n_calls % learner.train_freq.frequency == 0:
             callback.on_rollout_end()
             learner.train(gradient_steps=max(learner.gradient_steps, 1), batch_size=learner.batch_size)
             callback.on_rollout_start()
         return bool(keep_going)
 
+    def _monitored_info(self, agent: str, step: Transitions) -> dict[str, Any]:
+        """The agent's info, with the episode's vector return where it ended (what MOMonitor adds)."""
+        info = step.infos[agent]
+        monitor = self._monitors.setdefault(agent, [np.zeros(self._reward_dim), 0])
+        monitor[0] = monitor[0] + step.rewards[agent]
+        monitor[1] += 1
+        if step.terminations[agent] or step.truncations[agent]:
+            info = dict(info)
+            info["terminal_observation"] = step.obs[agent]
+            info["TimeLimit.truncated"] = step.truncations[agent] and not step.terminations[agent]
+            info["episode"] = {"r_vec": monitor[0], "l": monitor[1], "t": round(time.time() - self._start_time, 6)}
+            del self._monitors[agent]
+        return info
+
     def end_iteration(self) -> None:
         """Settle the learners' optimism (:meth:`~sb3_sfgpi.sfdqn.SFDQN.settle`), close their callbacks and logs."""
-        for agent, callback in self._learner_callbacks.items():
-            self.learners[agent].settle()
+        for name, callback in self._learner_callbacks.items():
+            self.learners[name].settle()
             callback.on_rollout_end()
             callback.on_training_end()
-            if self.learners[agent]._episode_num > 0:
-                self.learners[agent].dump_logs()
+            if self.learners[name]._episode_num > 0:
+                self.learners[name].dump_logs()
         self._learner_callbacks = {}
 
     def _close_learners(self) -> None:
@@ -383,20 +424,24 @@ class MultiAgentRunner:
             self.end_iteration()
         self._monitors: dict[str, list] = {}
 
-    def learner_policy(self, agent: str | None = None) -> JointPolicy:
+    def learner_policy(self, learner: str | None = None) -> JointPolicy:
         """
         The joint policy of the learners' greedy policies.
 
-        :param agent: None: every agent acts with its own learner; an agent's name: every agent acts with that
-            agent's learner (the value of its policy as a shared one)
+        :param learner: None: every agent acts with the learner it trains; a learner's name: every agent acts with
+            that learner (the value of its policy as a shared one)
         """
+        owner = {agent: name for name, agents in self.groups.items() for agent in agents}
 
         def act(observations: dict[str, Any]) -> dict[str, int]:
-            if agent is None:
-                return {a: int(self.learners[a].predict(o, deterministic=True)[0]) for a, o in observations.items()}
-            names = list(observations)
-            actions, _ = self.learners[agent].predict(np.stack([observations[a] for a in names]), deterministic=True)
-            return dict(zip(names, actions.tolist(), strict=True))
+            chosen: dict[str, int] = {}
+            for name in self.learner_names if learner is None else [learner]:
+                names = [a for a in observations if learner is not None or owner[a] == name]
+                if names:
+                    batch = np.stack([observations[a] for a in names])
+                    actions, _ = self.learners[name].predict(batch, deterministic=True)
+                    chosen.update(zip(names, actions.tolist(), strict=True))
+            return {agent: chosen[agent] for agent in observations}
 
         return act
 

@@ -1,7 +1,8 @@
 """A multi-agent version of the paper's Fig. 1 MOMDP, for exact tests of the multi-agent loop.
 
 Every agent walks its own copy of the chain s0 → s1 → s2 → s3 → s4 (terminal); the action only chooses the
-vector reward. ``max_steps`` truncates episodes before the terminal state, to exercise time limits.
+vector reward. ``max_steps`` truncates episodes before the terminal state, to exercise time limits; ``staggered``
+starts agent ``i`` at state ``i``, so that agents finish one after the other.
 """
 
 from __future__ import annotations
@@ -35,9 +36,10 @@ class ParallelChainEnv(ParallelEnv):
 
     metadata = {"name": "parallel_chain_v0", "render_modes": []}
 
-    def __init__(self, n_agents: int = 2, max_steps: int | None = None):
+    def __init__(self, n_agents: int = 2, max_steps: int | None = None, staggered: bool = False):
         self.possible_agents = [f"agent_{i}" for i in range(n_agents)]
         self.max_steps = max_steps
+        self.staggered = staggered
         self._reward_space = spaces.Box(0.0, 9.0, shape=(2,), dtype=np.float32)
         self._observation_space = spaces.Discrete(N_STATES)
         self._action_space = spaces.Discrete(3)
@@ -57,9 +59,9 @@ class ParallelChainEnv(ParallelEnv):
 
     def reset(self, seed=None, options=None):
         self.agents = list(self.possible_agents)
-        self.state = {agent: 0 for agent in self.agents}
+        self.state = {agent: i * self.staggered for i, agent in enumerate(self.agents)}
         self.steps = 0
-        return {agent: 0 for agent in self.agents}, {agent: {} for agent in self.agents}
+        return dict(self.state), {agent: {} for agent in self.agents}
 
     def step(self, actions):
         self.steps += 1

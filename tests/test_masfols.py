@@ -94,9 +94,12 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     assert (tmp_path / "logs" / "progress.csv").is_file()
 
 
-@pytest.mark.parametrize(("weights", "validation_weights"), [("ols", 0), ("random", 0), ("random", 3)])
-def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, weights, validation_weights):
-    kwargs = dict(steps=300, weights=weights, seed=3, validation_weights=validation_weights)
+@pytest.mark.parametrize(
+    ("weights", "validation_weights", "sharing"),
+    [("ols", 0, "independent"), ("random", 0, "independent"), ("random", 3, "independent"), ("random", 0, "shared")],
+)
+def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, weights, validation_weights, sharing):
+    kwargs = dict(steps=300, weights=weights, seed=3, validation_weights=validation_weights, sharing=sharing)
     whole = make(**kwargs, run_dir=tmp_path / "whole").learn(max_iterations=3)
 
     make(**kwargs, run_dir=tmp_path / "cut").learn(max_iterations=1)

@@ -45,6 +45,12 @@ def add_parser(sub: Any) -> None:
     train.add_argument("--out", type=Path, help="run directory (default: runs/<domain>-<algo>-s<seed>)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     train.add_argument("--transfer", action="store_true", help="start new learners from the best policy in the set")
+    train.add_argument(
+        "--sharing",
+        choices=["independent", "shared"],
+        help="independent: one learner per agent (the paper); shared: one learner per iteration that every agent "
+        "acts with and feeds (parameter sharing: one weight per iteration; for many agents). Default: independent",
+    )
     train.add_argument("--no-progress", action="store_true", help="no progress bars")
     train.add_argument(
         "--env",
@@ -161,6 +167,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "n_test_weights": n_test_weights,
         "weights": ALGORITHMS.get(args.algo) or check_weights(args.w, "--w"),
         "validation_weights": _validation_weights(args, preset),
+        "sharing": args.sharing or SETTING_DEFAULTS["sharing"],
     }
     if args.algo == "fixed":
         config.update(_fixed_budget(args, iterations, steps_per_iteration))
@@ -205,7 +212,7 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
     for option, key in (("--env", "env_kwargs"), ("--learner", "learner_kwargs")):
         if getattr(args, option[2:]) and config[key] != saved.get(key):
             raise UsageError(f"--resume: {option} would change the run's {key} ({saved.get(key)})")
-    for option in ("--steps-per-iteration", "--n-test-weights", "--transfer", "--validation-weights"):
+    for option in ("--steps-per-iteration", "--n-test-weights", "--transfer", "--validation-weights", "--sharing"):
         key = option[2:].replace("-", "_")
         given = getattr(args, key) is not None and getattr(args, key) is not False
         if given and config[key] != saved.get(key, SETTING_DEFAULTS.get(key)):
@@ -251,6 +258,7 @@ def _model(
         gpi_set=preset.gpi_set,
         transfer=config["transfer"],
         validation_weights=config["validation_weights"],
+        sharing=config["sharing"],
         run_info=config,
         verbose=1,
         **unstored,

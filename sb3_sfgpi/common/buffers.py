@@ -61,6 +61,7 @@ class MOReplayBuffer(ReplayBuffer):
         )
         self.reward_dim = reward_dim
         self.rewards = np.zeros((self.buffer_size, self.n_envs, reward_dim), dtype=np.float32)
+        self._rows_at_pos = 0  # rows of the step at ``pos`` written by add_rows (it is sampled once complete)
 
     def add(
         self,
@@ -83,6 +84,54 @@ class MOReplayBuffer(ReplayBuffer):
                 f"got {reward.shape}"
             )
         super().add(obs, next_obs, action, reward, done, infos)
+        self._rows_at_pos = 0
+
+    def add_rows(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        timeouts: np.ndarray,
+    ) -> None:
+        """
+        Add ``k`` transitions (any ``k``, e.g. those of the agents still alive among the ``n_envs`` that share one
+        learner) as the next ``k`` of the buffer's ``buffer_size * n_envs`` rows, in order.
+
+        A step of ``n_envs`` rows is sampled once all its rows are written, so sampling sees only complete steps;
+        with ``n_envs = 1`` and ``k = 1`` this is :meth:`add`.
+
+        :param obs: observations, shape ``(k, *obs_shape)``
+        :param next_obs: next observations (the terminal one where the episode ended)
+        :param actions: actions, shape ``(k,)`` or ``(k, action_dim)``
+        :param rewards: vector rewards, shape ``(k, reward_dim)``
+        :param dones: whether each transition ended its episode, shape ``(k,)``
+        :param timeouts: whether that end was a time-limit truncation, shape ``(k,)``
+        :raises ValueError: with ``optimize_memory_usage`` (its next observation is the same env's next row), or
+            rewards of the wrong shape
+        """
+        if self.optimize_memory_usage:
+            raise ValueError("add_rows needs a buffer without optimize_memory_usage")
+        k = len(rewards)
+        if np.shape(rewards) != (k, self.reward_dim):
+            raise ValueError(f"add_rows expects rewards of shape (k, {self.reward_dim}), got {np.shape(rewards)}")
+        capacity = self.buffer_size * self.n_envs
+        first = self.pos * self.n_envs + self._rows_at_pos
+        rows = (first + np.arange(k)) % capacity
+        for storage, values in (
+            (self.observations, obs),
+            (self.next_observations, next_obs),
+            (self.actions, actions),
+            (self.rewards, rewards),
+            (self.dones, dones),
+            (self.timeouts, timeouts if self.handle_timeout_termination else np.zeros(k)),
+        ):
+            flat = storage.reshape(capacity, *storage.shape[2:])  # a view: the storage is contiguous
+            flat[rows] = np.asarray(values).reshape(k, *storage.shape[2:])
+        end = first + k
+        self.full = self.full or end >= capacity
+        self.pos, self._rows_at_pos = divmod(end % capacity, self.n_envs)
 
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
         """

@@ -311,6 +311,9 @@ class SFDQN(OffPolicyAlgorithm):
         """
         ε-greedy action in ``w · ψ(s, ·)`` (greedy if ``deterministic``).
 
+        In a batch (several envs, or the agents sharing a learner) each row explores with probability ε on its own;
+        SB3's DQN draws once for the whole batch.
+
         The greedy choice of the ε-greedy (behaviour) policy breaks ties between actions of equal value at random:
         a tabular policy ties in every state it has not learned yet, and taking the first action there would
         explore nothing. The deterministic policy, whose successor features are learned, takes the first.
@@ -326,12 +329,18 @@ class SFDQN(OffPolicyAlgorithm):
         weights = self._weights if w is None else validate_weights(w, self.reward_dim)
         if not isinstance(observation, dict):
             observation = numeric_array(observation)
-        if not deterministic and np.random.rand() < self.exploration_rate:
-            vectorized = self.policy.is_vectorized_observation(observation)
-            n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
-            actions = np.array([self.action_space.sample() for _ in range(n_batch)])
+        if deterministic:
+            actions, vectorized = self.policy.greedy(observation, weights, random_ties=False)
             return (actions if vectorized else actions[0]), state
-        actions, vectorized = self.policy.greedy(observation, weights, random_ties=not deterministic)
+        vectorized = self.policy.is_vectorized_observation(observation)
+        n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
+        explore = np.random.rand(n_batch) < self.exploration_rate  # each env (or agent) on its own
+        if explore.all():
+            actions = np.array([self.action_space.sample() for _ in range(n_batch)])
+        else:
+            actions, _ = self.policy.greedy(observation, weights, random_ties=True)
+            for i in np.flatnonzero(explore):
+                actions[i] = self.action_space.sample()
         return (actions if vectorized else actions[0]), state
 
     def _store_transition(
