@@ -2,7 +2,7 @@
 
     python -m benchmarks                 # everything (about 15 minutes on 2 cores)
     python -m benchmarks --quick         # shorter runs, under two minutes
-    python -m benchmarks gpi ols         # only some (names: gpi, training, ols, traffic, memory, optimum, sharing)
+    python -m benchmarks gpi ols         # only some (gpi, training, ols, traffic, memory, optimum, sharing, sweep)
     python -m benchmarks --output results.md
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
@@ -32,6 +32,7 @@ BENCHMARKS = {
     "memory": "benchmarks.bench_memory",
     "optimum": "benchmarks.bench_optimum",
     "sharing": "benchmarks.bench_sharing",
+    "sweep": "benchmarks.bench_sweep",
 }
 
 

@@ -1,6 +1,7 @@
 """Reproduce the paper's Fig. 4: MA-SFOLS + GPI vs Random + GPI on the two-agent Four-Room.
 
-Trains both algorithms for several seeds (``sb3-sfgpi train four-room``, two runs at a time), draws the
+Trains both algorithms for several seeds (``sb3-sfgpi train four-room`` runs as one sweep on Ray: a local Ray with
+``--num-cpus`` CPUs, or the cluster at ``--address``), draws the
 mean ± std of GPI's return over the 12 test weights after every iteration (``sb3-sfgpi plot``), and prints
 per iteration the mean over seeds, the iteration at which each algorithm reaches 95% of its final value and
 the wall time of the runs. With ``--apriori-seeds`` it also trains the reference: one learner pair per test weight
@@ -17,7 +18,6 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -27,14 +27,16 @@ from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.plots import align_runs, ols_ended
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.sweep import RunSpec, run_sweep
 
 
-def train(out: Path, algo: str, seed: int, extra: list[str], name: str | None = None) -> Path:
-    run = out / f"{name or algo}-s{seed}"
-    resume = ["--resume"] if RunDirectory(run).is_run() else []
-    command = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--algo", algo, "--seed", str(seed)]
-    subprocess.run([*command, "--out", str(run), "--no-progress", *resume, *extra], check=True)
-    return run
+def train(args: argparse.Namespace, specs: list[RunSpec]) -> list[Path]:
+    """Train (or continue) the runs as one sweep; their directories, in order."""
+    outcomes = run_sweep(specs, args.out, address=args.address, num_cpus=args.num_cpus)
+    failed = [f"{o.spec.run_name}: {o.error}" for o in outcomes if o.status == "failed"]
+    if failed:
+        sys.exit("runs failed: " + "; ".join(failed))
+    return [outcome.run_dir for outcome in outcomes]
 
 
 def first_within(curve: np.ndarray, fraction: float = 0.95) -> int:
@@ -56,7 +58,8 @@ def main() -> None:
     parser.add_argument("--figure", type=Path, default=Path("docs/figures/four_room.png"))
     parser.add_argument("--iterations", type=int, help="iterations per run (default: the domain's)")
     parser.add_argument("--steps-per-iteration", type=int, help="joint steps per iteration (default: the domain's)")
-    parser.add_argument("--workers", type=int, default=2, help="runs trained at the same time")
+    parser.add_argument("--num-cpus", type=int, help="CPUs of the local Ray: runs at a time (default: all cores)")
+    parser.add_argument("--address", help="a Ray cluster to run on (default: RAY_ADDRESS, else a local Ray)")
     parser.add_argument("--apriori-seeds", type=int, nargs="*", default=[], help="seeds of the a-priori reference")
     parser.add_argument(
         "--env", metavar="KEY=VALUE", action="append", default=[], help="env override, e.g. observation_mode=xy"
@@ -69,11 +72,9 @@ def main() -> None:
     if args.steps_per_iteration:
         extra += ["--steps-per-iteration", str(args.steps_per_iteration)]
     jobs = [(algo, seed) for seed in args.seeds for algo in ("ma-sfols", "random")]
-    with ThreadPoolExecutor(args.workers) as pool:
-        runs = list(pool.map(lambda job: train(args.out, *job, extra), jobs))
-        apriori = list(
-            pool.map(lambda job: train(args.out, "fixed", job[0], job[1], job[2]), apriori_jobs(args, extra))
-        )
+    specs = [RunSpec("four-room", algo, seed, options=tuple(extra), name=f"{algo}-s{seed}") for algo, seed in jobs]
+    trained = train(args, [*specs, *apriori_specs(args, extra)])
+    runs, apriori = trained[: len(specs)], trained[len(specs) :]
 
     subprocess.run(
         [
@@ -114,15 +115,22 @@ def main() -> None:
         print(f"{reference.label}: {reference.mean:.3f} ± {reference.std:.3f}")
 
 
-def apriori_jobs(args: argparse.Namespace, extra: list[str]) -> list[tuple[int, list[str], str]]:
-    """(seed, options, name) of the a-priori runs: per seed and test weight, the budget of a whole run at once."""
+def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
+    """The a-priori runs: per seed and test weight, the budget of a whole run at once."""
     preset = load_domain("four-room")
     iterations = args.iterations or preset.iterations
     budget = iterations * (args.steps_per_iteration or preset.steps_per_iteration)
     weights = random_weights(3, preset.n_test_weights, rng=0)  # MASFOLS's test weights
-    options = [*(item for item in extra if item.startswith("--env")), "--iterations", "1"]
+    options = (*(item for item in extra if item.startswith("--env")), "--iterations", "1")
     return [
-        (seed, [*options, "--steps-per-iteration", str(budget), "--w", *map(str, w)], f"fixed-w{i}")
+        RunSpec(
+            "four-room",
+            "fixed",
+            seed,
+            tuple(w),
+            (*options, "--steps-per-iteration", str(budget)),
+            f"fixed-w{i}-s{seed}",
+        )
         for seed in args.apriori_seeds
         for i, w in enumerate(weights)
     ]

@@ -1,4 +1,4 @@
-"""Command line: ``sb3-sfgpi train | evaluate | compare | plot`` (one module per command).
+"""Command line: ``sb3-sfgpi train | evaluate | compare | plot | sweep`` (one module per command).
 
 Domains (``four-room``, ``traffic``, ...) are found through the entry-point group ``sb3_sfgpi.domains``
 (:mod:`sb3_sfgpi.cli.presets`). A user mistake is one line on stderr and exit code 2; training stopped by an error
@@ -11,11 +11,11 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from sb3_sfgpi.cli import compare, evaluate, plot, train
+from sb3_sfgpi.cli import compare, evaluate, plot, sweep, train
 from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
 from sb3_sfgpi.cli.presets import DomainPreset, available_domains, load_domain
 
-COMMANDS = {"train": train, "evaluate": evaluate, "compare": compare, "plot": plot}
+COMMANDS = {"train": train, "evaluate": evaluate, "compare": compare, "plot": plot, "sweep": sweep}
 
 __all__ = ["DomainPreset", "TrainingStopped", "UsageError", "available_domains", "load_domain", "main"]
 

@@ -1,0 +1,270 @@
+"""Sweeps: many ``sb3-sfgpi train`` runs as Ray tasks, each writing its own run directory, resumable.
+
+A sweep is a list of :class:`RunSpec` (domain, algorithm, seed, weights, further ``train`` options). Every run is
+one Ray task that runs ``sb3-sfgpi train`` in its worker process into ``out/<run name>``: its output goes to
+``train.log`` there, and ``sweep.json`` there records the run's spec, its attempts (process, host, start) and, once it
+ended, that it finished. A task whose worker dies (killed, out of memory, a node lost) is retried by Ray and
+continues from the run's last checkpoint (``train --resume``), so its results are those of an uninterrupted run;
+a sweep run again skips the runs that finished with the same spec. Ray is started locally with the machine's
+cores unless an address is given (or ``RAY_ADDRESS`` is set): then the runs go to that cluster, whose nodes must
+all see ``out`` (a shared filesystem) and have this package installed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import json
+import os
+import socket
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tqdm.auto import tqdm
+
+from sb3_sfgpi.common.serialization import atomic_write_json
+from sb3_sfgpi.common.weights import format_weights
+from sb3_sfgpi.run_directory import RunDirectory
+
+ALGORITHMS = ("ma-sfols", "random", "fixed")
+#: The file of a run directory where the sweep records the run's spec, attempts and end.
+SWEEP_FILE = "sweep.json"
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """
+    One run of a sweep: ``sb3-sfgpi train DOMAIN --algo ALGO --seed SEED [--w W] OPTIONS``.
+
+    :param domain: an installed domain (``four-room``, ``traffic``, ...)
+    :param algo: ``ma-sfols``, ``random`` or ``fixed`` (then ``w`` is required)
+    :param seed: the run's seed
+    :param w: the weights of ``fixed``
+    :param options: further ``train`` options, e.g. ``("--iterations", "3", "--env", "num_seconds=200")``
+    :param name: the run directory's name (default: domain, algorithm, weights and seed)
+    :raises ValueError: an unknown algorithm, a negative seed, weights missing or not wanted
+    """
+
+    domain: str
+    algo: str = "ma-sfols"
+    seed: int = 0
+    w: tuple[float, ...] | None = None
+    options: tuple[str, ...] = ()
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGORITHMS:
+            raise ValueError(f"algo must be one of {', '.join(ALGORITHMS)}, got {self.algo!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if (self.algo == "fixed") != (self.w is not None):
+            raise ValueError(f"weights w are for algo 'fixed' and it needs them (run {self.run_name!r})")
+        reserved = {"--algo", "--seed", "--w", "--out", "--resume"} & {o.partition("=")[0] for o in self.options}
+        if reserved:
+            raise ValueError(f"options may not set {sorted(reserved)}: the sweep sets them")
+        object.__setattr__(self, "w", None if self.w is None else tuple(float(x) for x in self.w))
+        object.__setattr__(self, "options", tuple(str(o) for o in self.options))
+
+    @property
+    def run_name(self) -> str:
+        """The name of the run's directory in the sweep's output."""
+        if self.name:
+            return self.name
+        weights = "" if self.w is None else "-w" + format_weights(self.w).strip("[]").replace(",", "-")
+        return f"{self.domain}-{self.algo}{weights}-s{self.seed}"
+
+    def train_argv(self, run_dir: Path, resume: bool) -> list[str]:
+        """The ``sb3-sfgpi`` arguments that train (or continue) this run in ``run_dir``."""
+        weights = [] if self.w is None else ["--w", *map(str, self.w)]
+        base = ["train", self.domain, "--algo", self.algo, "--seed", str(self.seed), *weights, "--out", str(run_dir)]
+        return [*base, "--no-progress", *(["--resume"] if resume else []), *self.options]
+
+    def to_json(self) -> dict[str, Any]:
+        return {**asdict(self), "w": None if self.w is None else list(self.w), "options": list(self.options)}
+
+
+@dataclass
+class RunOutcome:
+    """How a run of a sweep ended: ``finished`` (now or before: ``skipped``) or ``failed`` with its error."""
+
+    spec: RunSpec
+    run_dir: Path
+    status: str
+    attempts: int = 0
+    summary: dict[str, Any] = field(default_factory=dict)
+    error: str = ""
+
+
+def grid(
+    domains: Sequence[str],
+    algos: Sequence[str],
+    seeds: Sequence[int],
+    weights: Sequence[Sequence[float]] = (),
+    options: Sequence[str] = (),
+) -> list[RunSpec]:
+    """
+    The runs of domains × algorithms × seeds; ``fixed`` makes one run per entry of ``weights``.
+
+    :raises ValueError: ``fixed`` without weights, weights without ``fixed``, or an invalid run
+    """
+    if ("fixed" in algos) != bool(weights):
+        raise ValueError("weights are for the algorithm 'fixed', and 'fixed' needs weights")
+    return [
+        RunSpec(domain, algo, seed, w, tuple(options))
+        for domain in domains
+        for algo in algos
+        for w in (weights if algo == "fixed" else [None])
+        for seed in seeds
+    ]
+
+
+def read_spec(path: str | Path) -> list[RunSpec]:
+    """
+    The runs of a sweep file: JSON, either ``{"runs": [{"domain": ..., "algo": ..., "seed": ..., "w": ...,
+    "options": [...]}, ...]}`` or a grid ``{"domains": [...], "algos": [...], "seeds": [...], "weights": [...],
+    "options": [...]}``.
+
+    :raises ValueError: a file that is not such JSON, with what is wrong in it
+    """
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as error:
+        raise ValueError(f"sweep file {path}: {error}") from error
+    if not isinstance(data, dict):
+        raise ValueError(f"sweep file {path}: expected a JSON object with 'runs' or a grid")
+    try:
+        if "runs" in data:
+            return [
+                RunSpec(**{**run, "w": run.get("w"), "options": tuple(run.get("options", ()))}) for run in data["runs"]
+            ]
+        unknown = set(data) - {"domains", "algos", "seeds", "weights", "options"}
+        if unknown:
+            raise ValueError(f"unknown keys {sorted(unknown)}")
+        return grid(data["domains"], data["algos"], data["seeds"], data.get("weights", ()), data.get("options", ()))
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"sweep file {path}: {error}") from error
+
+
+def train_run(spec: RunSpec, run_dir: Path) -> RunOutcome:
+    """
+    Train (or continue) one run in this process, as a sweep's task does; its output is appended to ``train.log``.
+
+    :raises RuntimeError: the run stopped with an error (the task is retried and continues from the checkpoint)
+    :raises ValueError: the run's arguments are refused (not retried)
+    """
+    from sb3_sfgpi.cli import main
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    record = _read_record(run_dir)
+    attempt = {"pid": os.getpid(), "host": socket.gethostname(), "started": _now()}
+    record = {"spec": spec.to_json(), "attempts": [*record.get("attempts", []), attempt], "finished": False}
+    _write_record(run_dir, record)
+    argv = spec.train_argv(run_dir, resume=RunDirectory(run_dir).has_checkpoint())
+    with open(run_dir / "train.log", "a") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        print(f"--- attempt {len(record['attempts'])}: sb3-sfgpi {' '.join(argv)}", flush=True)
+        code = main(argv)
+    if code == 2:
+        raise ValueError(f"{spec.run_name}: train refused its arguments (see {run_dir / 'train.log'})")
+    if code != 0:
+        raise RuntimeError(f"{spec.run_name}: train stopped with exit code {code} (see {run_dir / 'train.log'})")
+    _write_record(run_dir, {**record, "finished": True, "ended": _now()})
+    return _outcome(spec, run_dir, "finished")
+
+
+def run_sweep(
+    specs: Iterable[RunSpec],
+    out: str | Path,
+    address: str | None = None,
+    num_cpus: int | None = None,
+    cpus_per_run: float = 1.0,
+    max_retries: int = 3,
+    progress_bar: bool = True,
+) -> list[RunOutcome]:
+    """
+    Run every spec as a Ray task (those that finished with the same spec before are skipped).
+
+    :param specs: the runs
+    :param out: the sweep's directory (one run directory per run)
+    :param address: a Ray cluster to join (``ray start --head`` prints it); None: ``RAY_ADDRESS``, else a local Ray
+    :param num_cpus: CPUs of a local Ray (default: the machine's)
+    :param cpus_per_run: CPUs Ray reserves for each run
+    :param max_retries: how often a run whose worker died, or that stopped with an error, is tried again
+    :param progress_bar: a bar over the runs
+    :return: per run, in the order given, how it ended
+    :raises ValueError: two runs with the same name
+    """
+    specs, out = list(specs), Path(out)
+    names = [spec.run_name for spec in specs]
+    if len(set(names)) != len(names):
+        raise ValueError(
+            f"two runs of the sweep have the same name: {sorted({n for n in names if names.count(n) > 1})}"
+        )
+    outcomes: dict[str, RunOutcome] = {
+        spec.run_name: _outcome(spec, out / spec.run_name, "skipped") for spec in specs if _finished(spec, out)
+    }
+    pending = [spec for spec in specs if spec.run_name not in outcomes]
+    bar = tqdm(total=len(specs), initial=len(outcomes), desc="sweep", unit="run", disable=not progress_bar)
+    if pending:
+        ray = _ray(address, num_cpus)
+        task = ray.remote(train_run).options(
+            num_cpus=cpus_per_run, max_retries=max_retries, retry_exceptions=[RuntimeError]
+        )
+        refs = {task.remote(spec, out / spec.run_name): spec for spec in pending}
+        while refs:
+            (ready,), _ = ray.wait(list(refs), num_returns=1)
+            spec = refs.pop(ready)
+            outcomes[spec.run_name] = _collect(ray, ready, spec, out / spec.run_name)
+            bar.update(1)
+    bar.close()
+    return [outcomes[name] for name in names]
+
+
+def _ray(address: str | None, num_cpus: int | None) -> Any:
+    """Ray, initialised: the given or ``RAY_ADDRESS``'s cluster, or a local one with ``num_cpus`` CPUs."""
+    try:
+        import ray
+    except ImportError as error:
+        raise ValueError("sweeps run on Ray: pip install 'sb3-sfgpi[ray]'") from error
+    if not ray.is_initialized():
+        local = address is None and not os.environ.get("RAY_ADDRESS")
+        kwargs = {"num_cpus": num_cpus or os.cpu_count(), "include_dashboard": False} if local else {}
+        ray.init(address=address, log_to_driver=False, **kwargs)
+    return ray
+
+
+def _collect(ray: Any, ref: Any, spec: RunSpec, run_dir: Path) -> RunOutcome:
+    """The outcome of a finished task: its result, or ``failed`` with the last error."""
+    try:
+        return ray.get(ref)
+    except Exception as error:  # a Ray error wrapping the task's, or the worker's death after the last retry
+        cause = getattr(error, "cause", None) or error
+        return _outcome(spec, run_dir, "failed", error=" ".join(str(cause).split())[:300])
+
+
+def _finished(spec: RunSpec, out: Path) -> bool:
+    record = _read_record(out / spec.run_name)
+    return bool(record.get("finished")) and record.get("spec") == spec.to_json()
+
+
+def _outcome(spec: RunSpec, run_dir: Path, status: str, error: str = "") -> RunOutcome:
+    record = _read_record(run_dir)
+    rows = RunDirectory(run_dir).read_summary() if RunDirectory(run_dir).has_evaluations() else []
+    return RunOutcome(spec, run_dir, status, len(record.get("attempts", [])), rows[-1] if rows else {}, error)
+
+
+def _read_record(run_dir: Path) -> dict[str, Any]:
+    try:
+        record = json.loads((run_dir / SWEEP_FILE).read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def _write_record(run_dir: Path, record: dict[str, Any]) -> None:
+    atomic_write_json(run_dir / SWEEP_FILE, record)
+
+
+def _now() -> str:
+    return datetime.datetime.now().isoformat(timespec="seconds")

@@ -1,0 +1,117 @@
+"""Sweeps: run specs, spec files, the CLI's errors, and on a local Ray a run killed mid-way that ends as if it had not
+been."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from sb3_sfgpi.cli import main
+from sb3_sfgpi.sweep import RunSpec, grid, read_spec, run_sweep, train_run
+
+#: Four-room runs of a few seconds: short episodes, small iterations, few test weights, no validation.
+TINY = ("--env", "max_steps=30", "--steps-per-iteration", "600", "--n-test-weights", "2", "--validation-weights", "0")
+
+
+def test_grid_makes_every_combination_and_names_each_run():
+    specs = grid(["four-room"], ["ma-sfols", "fixed"], [0, 1], weights=[[0.5, 0.5, 0], [1, 0, 0]])
+    assert [spec.run_name for spec in specs] == [
+        "four-room-ma-sfols-s0",
+        "four-room-ma-sfols-s1",
+        "four-room-fixed-w0.5-0.5-0-s0",
+        "four-room-fixed-w0.5-0.5-0-s1",
+        "four-room-fixed-w1-0-0-s0",
+        "four-room-fixed-w1-0-0-s1",
+    ]
+    assert specs[2].train_argv(tmp := __import__("pathlib").Path("x"), resume=True) == [
+        "train", "four-room", "--algo", "fixed", "--seed", "0", "--w", "0.5", "0.5", "0.0", "--out", str(tmp),
+        "--no-progress", "--resume",
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        (dict(algo="ppo"), "algo must be one of"),
+        (dict(seed=-1), "seed must be an integer >= 0"),
+        (dict(algo="fixed"), "weights w are for algo 'fixed'"),
+        (dict(w=(1.0, 0.0)), "weights w are for algo 'fixed'"),
+        (dict(options=("--seed", "3")), "may not set"),
+        (dict(options=("--out=x",)), "may not set"),
+    ],
+)
+def test_bad_run_specs_are_refused_by_name(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        RunSpec("four-room", **kwargs)
+
+
+def test_spec_files_hold_runs_or_a_grid_and_bad_ones_are_refused(tmp_path):
+    runs = tmp_path / "runs.json"
+    runs.write_text(json.dumps({"runs": [{"domain": "four-room", "algo": "fixed", "w": [1, 0, 0], "options": TINY}]}))
+    (spec,) = read_spec(runs)
+    assert spec.w == (1.0, 0.0, 0.0) and spec.options == TINY
+    grid_file = tmp_path / "grid.json"
+    grid_file.write_text(json.dumps({"domains": ["four-room"], "algos": ["random"], "seeds": [0, 1, 2]}))
+    assert [s.seed for s in read_spec(grid_file)] == [0, 1, 2]
+    for content, message in (
+        ("[1, 2]", "a JSON object"),
+        ("{", "Expecting"),
+        ('{"domains": ["x"], "sedes": [1]}', "unknown"),
+    ):
+        grid_file.write_text(content)
+        with pytest.raises(ValueError, match=message):
+            read_spec(grid_file)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--out", "OUT"], "give --domains"),
+        (["--domains", "four-room", "--algos", "fixed", "--out", "OUT"], "'fixed' needs weights"),
+        (["--domains", "four-room", "--num-cpus", "0", "--out", "OUT"], "--num-cpus must be at least 1"),
+        (["--spec", "SPEC", "--domains", "four-room", "--out", "OUT"], "no --domains"),
+    ],
+)
+def test_the_sweep_command_refuses_bad_arguments_in_one_line(tmp_path, capsys, argv, message):
+    argv = [str(tmp_path / a) if a in ("OUT", "SPEC") else a for a in argv]
+    assert main(["sweep", *argv]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(tmp_path):
+    ray = pytest.importorskip("ray")
+    specs = grid(["four-room"], ["ma-sfols", "random"], [0, 1], options=[*TINY, "--iterations", "3"])
+    target = specs[0]
+    uninterrupted = train_run(target, tmp_path / "uninterrupted")  # the same run in this process, never killed
+    out = tmp_path / "sweep"
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        outcomes: list = []
+        sweep = threading.Thread(target=lambda: outcomes.extend(run_sweep(specs, out, progress_bar=False)))
+        sweep.start()
+        run_dir = out / target.run_name
+        while not (run_dir / "checkpoint.json").is_file():  # the target finished its first iteration of 3
+            assert sweep.is_alive(), "the sweep ended before the run could be killed"
+            time.sleep(0.02)
+        pid = json.loads((run_dir / "sweep.json").read_text())["attempts"][-1]["pid"]
+        os.kill(pid, signal.SIGKILL)
+        sweep.join(timeout=600)
+        assert [o.status for o in outcomes] == ["finished"] * 4
+        assert [o.attempts for o in outcomes] == [2, 1, 1, 1]
+        killed = json.loads((run_dir / "evaluation.json").read_text())
+        reference = json.loads((uninterrupted.run_dir / "evaluation.json").read_text())
+        strip = [
+            [{k: v for k, v in row.items() if k not in ("wall_time", "eval_time")} for row in rows]
+            for rows in (killed, reference)
+        ]
+        assert len(killed) == 3 and strip[0] == strip[1]
+        again = run_sweep(specs, out, progress_bar=False)  # a sweep run again skips what finished
+        assert [o.status for o in again] == ["skipped"] * 4 and [o.attempts for o in again] == [2, 1, 1, 1]
+    finally:
+        ray.shutdown()
