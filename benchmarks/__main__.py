@@ -2,7 +2,7 @@
 
     python -m benchmarks                 # everything (about 15 minutes on 2 cores)
     python -m benchmarks --quick         # shorter runs, under two minutes
-    python -m benchmarks gpi ols         # only some (gpi, training, ols, traffic, memory, optimum, sharing, sweep)
+    python -m benchmarks gpi ols         # some: gpi training ols traffic memory optimum sharing sweep copies
     python -m benchmarks --output results.md
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
@@ -33,6 +33,7 @@ BENCHMARKS = {
     "optimum": "benchmarks.bench_optimum",
     "sharing": "benchmarks.bench_sharing",
     "sweep": "benchmarks.bench_sweep",
+    "copies": "benchmarks.bench_copies",
 }
 
 

@@ -39,9 +39,10 @@ SETTINGS = (
     "transfer",
     "validation_weights",
     "sharing",
+    "n_envs",
 )
 #: Settings that runs written before they existed lack, with the value that reproduces those runs.
-SETTING_DEFAULTS = {"validation_weights": 0, "sharing": "independent"}
+SETTING_DEFAULTS = {"validation_weights": 0, "sharing": "independent", "n_envs": 1}
 
 
 class MASFOLS:
@@ -72,9 +73,16 @@ class MASFOLS:
         trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
         learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the
         agents' transitions; for many homogeneous agents). See :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`
+    :param n_envs: train on this many copies of the env, each in its own process (``env_fn``), stepped together: a
+        learner has a slot per agent and copy. An iteration's ``steps_per_iteration`` joint steps then give
+        ``n_envs`` times as many transitions. 1: train on ``env`` (evaluations always run on ``env``)
+    :param env_fn: picklable env constructor of the copies (required when ``n_envs > 1``), and of the evaluation
+        workers unless ``eval_env_fn`` is given
+    :param env_kwargs: its keyword arguments
     :param eval_workers: evaluate GPI in this many worker processes (0: in this process)
-    :param eval_env_fn: picklable env constructor of the workers (required when ``eval_workers > 0``)
-    :param eval_env_kwargs: its keyword arguments
+    :param eval_env_fn: picklable env constructor of the workers (default: ``env_fn``; required when
+        ``eval_workers > 0`` and there is no ``env_fn``)
+    :param eval_env_kwargs: its keyword arguments (default: ``env_kwargs``)
     :param run_info: more plain data to store in ``run.json`` (e.g. the CLI's domain and env arguments)
     :param verbose: 1 prints a line per iteration
     :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them)
@@ -97,6 +105,9 @@ class MASFOLS:
         transfer: bool = False,
         validation_weights: int = 0,
         sharing: str = "independent",
+        n_envs: int = 1,
+        env_fn: Callable[..., ParallelEnv] | None = None,
+        env_kwargs: Mapping[str, Any] | None = None,
         eval_workers: int = 0,
         eval_env_fn: Callable[..., ParallelEnv] | None = None,
         eval_env_kwargs: Mapping[str, Any] | None = None,
@@ -111,6 +122,9 @@ class MASFOLS:
             gamma=learner_kwargs.get("gamma", 0.99),
             tensorboard_log=None if run_dir is None else str(RunDirectory(run_dir).tensorboard_dir),
             sharing=sharing,
+            n_envs=n_envs,
+            env_fn=env_fn,
+            env_kwargs=env_kwargs,
         )
         self.runner.check_learner()
         fixed = not isinstance(weights, str)
@@ -130,11 +144,12 @@ class MASFOLS:
             "transfer": transfer,
             "validation_weights": validation_weights,
             "sharing": sharing,
+            "n_envs": n_envs,
         }
         own = fixed and sharing == "independent"  # fixed weights: each agent by GPI over its own policies
         evaluation = EvaluationConfig(
             test_weights, eval_episodes, "own" if own else "shared", gpi_set, eval_workers,
-            eval_env_fn, dict(eval_env_kwargs or {}),
+            eval_env_fn or env_fn, dict(eval_env_kwargs or env_kwargs or {}),
         )  # fmt: skip
         self.callback = OLSCallback(
             make_schedule(weights),
@@ -167,8 +182,8 @@ class MASFOLS:
 
         :param run_dir: the run directory (written by a :class:`MASFOLS` with ``run_dir``)
         :param env: the env, built as for the run
-        :param kwargs: arguments that are not stored: ``eval_workers``, ``eval_env_fn``, ``eval_env_kwargs``,
-            ``verbose``
+        :param kwargs: arguments that are not stored: ``env_fn``, ``env_kwargs``, ``eval_workers``, ``eval_env_fn``,
+            ``eval_env_kwargs``, ``verbose``
         :raises ValueError: not a run directory, or a stored setting missing
         """
         config = {**SETTING_DEFAULTS, **RunDirectory(run_dir).read_config()}
@@ -213,6 +228,7 @@ class MASFOLS:
         return self.callback.history
 
     def close(self) -> None:
-        """Stop evaluation workers and close the env."""
+        """Stop evaluation workers and the env's copies, and close the env."""
         self.callback.close()
+        self.runner.close()
         self.runner.env.close()

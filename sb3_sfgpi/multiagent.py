@@ -12,7 +12,7 @@ from __future__ import annotations
 import shutil
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -26,6 +26,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 from tqdm.auto import tqdm
 
+from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import flattened, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
@@ -46,15 +47,16 @@ class AgentVecEnv(VecEnv):
 
     :param env: the shared env
     :param agents: the agent's name, or the names of the agents sharing the learner
+    :param n_copies: copies of the env the runner steps (the view has a slot per agent and copy)
     """
 
     vector_rewards = True
     render_mode = None  # the shared env is rendered by the runner's owner, not through a view
 
-    def __init__(self, env: ParallelEnv, agents: str | list[str]):
+    def __init__(self, env: ParallelEnv, agents: str | list[str], n_copies: int = 1):
         self.agents = [agents] if isinstance(agents, str) else list(agents)
         first = self.agents[0]
-        super().__init__(len(self.agents), env.observation_space(first), env.action_space(first))
+        super().__init__(n_copies * len(self.agents), env.observation_space(first), env.action_space(first))
         self.agent = first if len(self.agents) == 1 else f"{first}..{self.agents[-1]}"
         self.reward_space = env.reward_space(first)  # type: ignore[attr-defined]
         self.current_obs: np.ndarray | None = None
@@ -118,16 +120,16 @@ def _remove_interrupted_logs(directory: str, log_name: str) -> None:
 
 
 class Transitions(NamedTuple):
-    """A joint step as one learner sees it: its live agents (and their slots) and what the env returned."""
+    """A joint step as one learner sees it: its live slots, their ``(copy, agent)`` keys, what the copies returned."""
 
-    agents: list[str]
+    agents: list[tuple[int, str]]
     slots: list[int]
     buffer_actions: np.ndarray
-    obs: dict[str, Any]
-    rewards: dict[str, Any]
-    terminations: dict[str, bool]
-    truncations: dict[str, bool]
-    infos: dict[str, dict]
+    obs: dict[tuple[int, str], Any]
+    rewards: dict[tuple[int, str], Any]
+    terminations: dict[tuple[int, str], bool]
+    truncations: dict[tuple[int, str], bool]
+    infos: dict[tuple[int, str], dict]
 
 
 def _replaced(rows: np.ndarray, slots: list[int], values: np.ndarray) -> np.ndarray:
@@ -168,6 +170,11 @@ class MultiAgentRunner:
     :param log_interval: a learner writes its logs (TensorBoard, stdout) every ``log_interval`` of its episodes, as
         in SB3's ``learn(log_interval=...)``, and at the end of its iteration
     :param sharing: ``"independent"``: one learner per agent; ``"shared"``: one learner for all agents
+    :param n_envs: copies of the env to train on, each in its own process (``env_fn``), all stepped at every joint
+        step: a learner has a slot per agent and copy (SB3's ``n_envs``). 1: train on ``env`` itself. Evaluations and
+        value estimates always run on ``env``
+    :param env_fn: picklable constructor of the copies (required when ``n_envs > 1``)
+    :param env_kwargs: its keyword arguments (they should build the same env as ``env``)
     """
 
     def __init__(
@@ -181,17 +188,23 @@ class MultiAgentRunner:
         verbose: int = 0,
         log_interval: int = 4,
         sharing: str = "independent",
+        n_envs: int = 1,
+        env_fn: Callable[..., ParallelEnv] | None = None,
+        env_kwargs: Mapping[str, Any] | None = None,
     ):
         if isinstance(log_interval, bool) or not isinstance(log_interval, int) or log_interval < 1:
             raise ValueError(f"log_interval must be a positive integer, got {log_interval!r}")
         if sharing not in ("independent", "shared"):
             raise ValueError(f"sharing must be 'independent' or 'shared', got {sharing!r}")
+        if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
+            raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
+        if n_envs > 1 and env_fn is None:
+            raise ValueError("n_envs > 1 needs env_fn (and env_kwargs) to build the env's copies")
         self.log_interval = log_interval
         self.sharing = sharing
         self.env = env = flattened(env)
         self.agents: list[str] = list(env.possible_agents)
         self._time_limit = time_limit(env)
-        self._episode_steps = 0
         self._warned_swap = False
         self.learner_factory = learner_factory or default_learner_factory()
         self.seed = seed
@@ -204,7 +217,15 @@ class MultiAgentRunner:
         self.groups: dict[str, list[str]] = (
             {SHARED: self.agents} if sharing == "shared" else {agent: [agent] for agent in self.agents}
         )
-        self.views = {name: AgentVecEnv(env, agents) for name, agents in self.groups.items()}
+        self.n_envs = n_envs
+        #: learner name -> its slots: ``(copy, agent)``, copy by copy
+        self.slots = {name: [(c, a) for c in range(n_envs) for a in agents] for name, agents in self.groups.items()}
+        self.views = {name: AgentVecEnv(env, agents, n_envs) for name, agents in self.groups.items()}
+        self.copies: SingleCopy | EnvCopies = (
+            SingleCopy(env) if n_envs == 1 else EnvCopies(env_fn, env_kwargs or {}, n_envs)  # type: ignore[arg-type]
+        )
+        self._live: list[set[str]] = [set() for _ in range(n_envs)]  # per copy, the agents still in its episode
+        self._episode_steps = [0] * n_envs
         self.learners: dict[str, SFDQN] = {}
         self._learner_callbacks: dict[str, BaseCallback] = {}
         self._gamma = gamma
@@ -316,54 +337,74 @@ class MultiAgentRunner:
             callback.on_rollout_start()
             self._learner_callbacks[name] = callback
 
-    def reset_env(self, seed: int | None = None) -> None:
-        """Reset the shared env and hand every learner its first observations (training continues from there)."""
-        obs, _ = self.env.reset(seed=seed)
-        self._episode_steps = 0
-        for name, agents in self.groups.items():
-            batched = np.stack([np.asarray(obs[agent]) for agent in agents])
-            self.views[name].current_obs = batched
+    def reset_env(self, seed: int | None = None, copies: list[int] | None = None) -> None:
+        """
+        Reset the env's copies and hand every learner its first observations (training continues from there).
+
+        :param seed: the seed of the first copy (the others derive theirs from it), or None
+        :param copies: the copies to reset (default: all)
+        """
+        copies = list(range(self.n_envs)) if copies is None else copies
+        seeds = [seed if seed is None or copy == 0 else derive_seed(seed, "copy", copy) for copy in copies]
+        observations = {}
+        for copy, (obs, agents) in zip(copies, self.copies.reset(seeds, copies), strict=True):
+            self._live[copy], self._episode_steps[copy] = set(agents), 0
+            observations.update({(copy, agent): obs[agent] for agent in obs})
+        for name, slots in self.slots.items():
+            rows = [i for i, key in enumerate(slots) if key in observations]
+            batched = np.stack([np.asarray(observations[slots[i]]) for i in rows])
+            if len(rows) == len(slots):
+                self.views[name].current_obs = batched
             if name in self.learners:
-                self.learners[name]._last_obs = batched.copy()  # type: ignore[assignment]
-                self.learners[name]._last_original_obs = batched  # type: ignore[assignment]
+                learner = self.learners[name]
+                whole = len(rows) == len(slots)
+                learner._last_obs = batched.copy() if whole else _replaced(learner._last_obs, rows, batched)  # type: ignore[assignment,arg-type]
+                learner._last_original_obs = learner._last_obs
 
     def step(self) -> bool:
         """
-        One joint step: every live agent acts, its learner stores the transition and trains when due.
+        One joint step: every live agent of every copy acts, its learner stores the transition and trains when due.
 
         :return: False if a learner's callback asked to stop
         """
-        actions, sampled = {}, {}
-        live_agents = set(self.env.agents)
-        for name, agents in self.groups.items():
-            live = [slot for slot, agent in enumerate(agents) if agent in live_agents]
+        actions: list[dict[str, int]] = [{} for _ in range(self.n_envs)]
+        sampled = {}
+        for name, slots in self.slots.items():
+            live = [i for i, (copy, agent) in enumerate(slots) if agent in self._live[copy]]
             if live:
                 learner = self.learners[name]
                 action, buffer_action = learner._sample_action(learner.learning_starts, None, learner.n_envs)
-                actions.update({agents[slot]: int(action[slot]) for slot in live})
+                for i in live:
+                    copy, agent = slots[i]
+                    actions[copy][agent] = int(action[i])
                 sampled[name] = (live, buffer_action)
-        obs, rewards, terminations, truncations, infos = self.env.step(actions)
+        results = self.copies.step(actions)
         self.num_timesteps += 1
-        self._episode_steps += 1
-        self._check_truncations(terminations, truncations)
+        merged: list[dict] = [{}, {}, {}, {}, {}]  # observations, rewards, terminations, truncations, infos
+        for copy, (*returned, agents) in enumerate(results):
+            self._episode_steps[copy] += 1
+            self._live[copy] = set(agents)
+            self._check_truncations(copy, returned[2], returned[3])
+            for values, by_key in zip(returned, merged, strict=True):
+                by_key.update({(copy, agent): value for agent, value in values.items()})
         keep_going = True
         for name, (live, buffer_action) in sampled.items():
-            agents = [self.groups[name][slot] for slot in live]
-            transitions = Transitions(agents, live, buffer_action[live], obs, rewards, terminations, truncations, infos)
-            keep_going &= self._learner_step(name, transitions)
-        if not self.env.agents:
-            self.reset_env()
+            keys = [self.slots[name][i] for i in live]
+            keep_going &= self._learner_step(name, Transitions(keys, live, buffer_action[live], *merged))
+        finished = [copy for copy in range(self.n_envs) if not self._live[copy]]
+        if finished:
+            self.reset_env(copies=finished)
         return keep_going
 
-    def _check_truncations(self, terminations: dict[str, bool], truncations: dict[str, bool]) -> None:
+    def _check_truncations(self, copy: int, terminations: dict[str, bool], truncations: dict[str, bool]) -> None:
         """Warn once where every agent is truncated before the env's declared time limit: swapped flags?"""
-        if self._warned_swap or self.env.agents or self._time_limit is None:
+        if self._warned_swap or self._live[copy] or self._time_limit is None:
             return
         truncated = all(truncations.get(a, False) and not terminations.get(a, False) for a in truncations)
-        if truncated and self._episode_steps < self._time_limit:
+        if truncated and self._episode_steps[copy] < self._time_limit:
             self._warned_swap = True
             warnings.warn(
-                f"every agent was truncated after {self._episode_steps} steps, before the env's time limit "
+                f"every agent was truncated after {self._episode_steps[copy]} steps, before the env's time limit "
                 f"({self._time_limit}): does it return terminations and truncations swapped (MOMAland 0.2's item "
                 "gathering and beach do)? Then wrap it in sb3_sfgpi.SwapTerminationsTruncations",
                 stacklevel=3,
@@ -395,8 +436,8 @@ class MultiAgentRunner:
             callback.on_rollout_start()
         return bool(keep_going)
 
-    def _monitored_info(self, agent: str, step: Transitions) -> dict[str, Any]:
-        """The agent's info, with the episode's vector return where it ended (what MOMonitor adds)."""
+    def _monitored_info(self, agent: tuple[int, str], step: Transitions) -> dict[str, Any]:
+        """The info of ``(copy, agent)``, with the episode's vector return where it ended (what MOMonitor adds)."""
         info = step.infos[agent]
         monitor = self._monitors.setdefault(agent, [np.zeros(self._reward_dim), 0])
         monitor[0] = monitor[0] + step.rewards[agent]
@@ -449,12 +490,18 @@ class MultiAgentRunner:
         """
         Monte-Carlo returns of a joint policy on the shared env (episode ``i`` resets with ``seed + i``).
 
-        The shared env is reset afterwards, so training resumes on a fresh episode.
+        Where training runs on the same env (``n_envs=1``), it is reset afterwards, so training resumes on a fresh
+        episode; the copies of ``n_envs > 1`` go on where they were.
         """
         returns = run_episodes(self.env, policy, n_episodes, self.gamma, seed=seed)
-        self.reset_env()
-        self._monitors = {}
+        if self.n_envs == 1:
+            self.reset_env()
+            self._monitors = {}
         return returns
+
+    def close(self) -> None:
+        """Stop the processes of the env's copies (``n_envs > 1``); the env itself is the caller's."""
+        self.copies.close()
 
     def learn(
         self, total_timesteps: int, callback: MaybeCallback = None, progress_bar: bool = False

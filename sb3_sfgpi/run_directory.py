@@ -93,7 +93,7 @@ _SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
     "sharing": lambda v: v in ("independent", "shared"),
     **dict.fromkeys(("env_kwargs", "learner_kwargs"), lambda v: isinstance(v, dict)),
     **dict.fromkeys(("seed", "iterations", "steps_per_iteration", "n_test_weights", "validation_weights"), _integer),
-    **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers"), _integer),
+    **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers", "n_envs"), _integer),
     "transfer": lambda v: isinstance(v, bool),
     "test_weights": lambda v: _weights(v, 2),
     "weights": lambda v: isinstance(v, str) or _weights(v, 1),

@@ -51,6 +51,12 @@ def add_parser(sub: Any) -> None:
         help="independent: one learner per agent (the paper); shared: one learner per iteration that every agent "
         "acts with and feeds (parameter sharing: one weight per iteration; for many agents). Default: independent",
     )
+    train.add_argument(
+        "--n-envs",
+        type=int,
+        help="train on K copies of the env, each in its own process, stepped together (every learner gets K times "
+        "the transitions per joint step; SB3's n_envs). Default 1",
+    )
     train.add_argument("--no-progress", action="store_true", help="no progress bars")
     train.add_argument(
         "--env",
@@ -143,6 +149,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
     steps_per_iteration = preset.steps_per_iteration if args.steps_per_iteration is None else args.steps_per_iteration
     n_test_weights = preset.n_test_weights if args.n_test_weights is None else args.n_test_weights
     for name, value in (
+        ("--n-envs", 1 if args.n_envs is None else args.n_envs),
         ("--iterations", iterations),
         ("--steps-per-iteration", steps_per_iteration),
         ("--n-test-weights", n_test_weights),
@@ -168,6 +175,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "weights": ALGORITHMS.get(args.algo) or check_weights(args.w, "--w"),
         "validation_weights": _validation_weights(args, preset),
         "sharing": args.sharing or SETTING_DEFAULTS["sharing"],
+        "n_envs": SETTING_DEFAULTS["n_envs"] if args.n_envs is None else args.n_envs,
     }
     if args.algo == "fixed":
         config.update(_fixed_budget(args, iterations, steps_per_iteration))
@@ -212,7 +220,14 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
     for option, key in (("--env", "env_kwargs"), ("--learner", "learner_kwargs")):
         if getattr(args, option[2:]) and config[key] != saved.get(key):
             raise UsageError(f"--resume: {option} would change the run's {key} ({saved.get(key)})")
-    for option in ("--steps-per-iteration", "--n-test-weights", "--transfer", "--validation-weights", "--sharing"):
+    for option in (
+        "--steps-per-iteration",
+        "--n-test-weights",
+        "--transfer",
+        "--validation-weights",
+        "--sharing",
+        "--n-envs",
+    ):
         key = option[2:].replace("-", "_")
         given = getattr(args, key) is not None and getattr(args, key) is not False
         if given and config[key] != saved.get(key, SETTING_DEFAULTS.get(key)):
@@ -236,10 +251,7 @@ def _model(
     args: argparse.Namespace, preset: DomainPreset, env: Any, run_dir: RunDirectory, config: dict[str, Any]
 ) -> MASFOLS:
     """A new MASFOLS for the run, or the stored one continued (``--resume``)."""
-    workers = config["eval_workers"]
-    unstored = dict(
-        eval_workers=workers, eval_env_fn=preset.make_env if workers else None, eval_env_kwargs=config["env_kwargs"]
-    )
+    unstored = dict(eval_workers=config["eval_workers"], env_fn=preset.make_env, env_kwargs=config["env_kwargs"])
     if args.resume:
         run_dir.write_config(config)
         return MASFOLS.load(run_dir.path, env, verbose=1, **unstored)
@@ -259,6 +271,7 @@ def _model(
         transfer=config["transfer"],
         validation_weights=config["validation_weights"],
         sharing=config["sharing"],
+        n_envs=config["n_envs"],
         run_info=config,
         verbose=1,
         **unstored,

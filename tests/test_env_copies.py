@@ -1,0 +1,101 @@
+"""Training on several copies of the env, each in its own process (``n_envs``)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from momdp import REWARDS, TERMINAL
+from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
+
+from sb3_sfgpi import MASFOLS
+from sb3_sfgpi.cli import main
+from sb3_sfgpi.common.env_copies import EnvCopies
+from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+
+LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
+
+
+class FailingChain(ParallelChainEnv):
+    """A chain whose simulator breaks at its third step."""
+
+    def step(self, actions):
+        if self.steps == 2:
+            raise ValueError("the simulator broke")
+        return super().step(actions)
+
+
+def test_every_copy_feeds_every_learner_a_slot_per_agent():
+    kwargs = dict(n_agents=2, staggered=True)
+    runner = MultiAgentRunner(
+        ParallelChainEnv(**kwargs), default_learner_factory(**CHAIN_LEARNER), n_envs=3, env_fn=ParallelChainEnv,
+        env_kwargs=kwargs,
+    )  # fmt: skip
+    try:
+        runner.start_iteration({a: np.array([0.5, 0.5]) for a in runner.agents}, iteration=0, total_timesteps=100)
+        for _ in range(8):  # two episodes of 4 joint steps in each of the 3 copies
+            runner.step()
+        for agent, learner in runner.learners.items():
+            per_copy = 4 if agent == "agent_0" else 3  # agent_1 starts one state further: 3 steps an episode
+            assert learner.n_envs == 3 and learner._n_calls == 2 * per_copy
+            assert learner.num_timesteps == 3 * 2 * per_copy
+            obs, actions, next_obs, dones, rewards = learner.replay_buffer.stored_arrays()
+            obs, next_obs = obs.reshape(-1), next_obs.reshape(-1)
+            assert len(obs) == 3 * 2 * per_copy
+            np.testing.assert_array_equal(next_obs, obs + 1)
+            np.testing.assert_array_equal(dones, next_obs == TERMINAL)
+            np.testing.assert_array_equal(rewards, REWARDS[obs, actions])
+    finally:
+        runner.close()
+
+
+def test_ma_sfols_on_two_copies_finds_the_exact_ccs_and_continues_exactly(tmp_path):
+    def make(run_dir):
+        return MASFOLS(
+            ParallelChainEnv(2), steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS, test_weights=3, seed=2,
+            n_envs=2, env_fn=ParallelChainEnv, env_kwargs={"n_agents": 2}, run_dir=run_dir,
+        )  # fmt: skip
+
+    whole = make(tmp_path / "whole").learn(max_iterations=10)
+    whole.close()
+    assert whole.callback.ended_by_schedule
+    for w0 in np.linspace(0, 1, 11):
+        w = np.array([w0, 1 - w0])
+        assert whole.policy_set.q_values(np.array([0]), w).max() == pytest.approx(optimal_value(w), abs=1e-3)
+    cut = make(tmp_path / "cut")
+    cut.learn(max_iterations=1)
+    cut.close()
+    continued = MASFOLS.load(tmp_path / "cut", ParallelChainEnv(2), env_fn=ParallelChainEnv, env_kwargs={"n_agents": 2})
+    continued.learn(max_iterations=10)
+    continued.close()
+    assert [r["mean_return"] for r in continued.history] == [r["mean_return"] for r in whole.history]
+    assert [r["weights_trained"] for r in continued.history] == [r["weights_trained"] for r in whole.history]
+
+
+def test_a_broken_copy_stops_training_with_its_error_and_bad_options_are_refused():
+    copies = EnvCopies(FailingChain, {"n_agents": 2}, 2)
+    try:
+        copies.reset([0, 1])
+        copies.step([{"agent_0": 0, "agent_1": 0}] * 2)
+        copies.step([{"agent_0": 0, "agent_1": 0}] * 2)
+        with pytest.raises(RuntimeError, match="env copy 0 failed: ValueError: the simulator broke"):
+            copies.step([{"agent_0": 0, "agent_1": 0}] * 2)
+    finally:
+        copies.close()
+    with pytest.raises(ValueError, match="n_envs > 1 needs env_fn"):
+        MultiAgentRunner(ParallelChainEnv(2), n_envs=2)
+    with pytest.raises(ValueError, match="n_envs must be a positive integer"):
+        MultiAgentRunner(ParallelChainEnv(2), n_envs=0)
+
+
+def test_cli_trains_on_copies_and_refuses_to_change_their_number_on_resume(tmp_path):
+    out = tmp_path / "fr"
+    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--no-progress"]
+    assert main([*train, "--n-envs", "2", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["n_envs"] == 2
+    assert json.loads((out / "checkpoint.json").read_text())["timesteps"] == 100  # joint steps, as with one env
+    train[train.index("--iterations") + 1] = "2"
+    assert main([*train, "--n-envs", "1", "--out", str(out), "--resume"]) == 2
+    assert main([*train, "--out", str(out), "--resume"]) == 0
+    assert main([*train, "--n-envs", "0", "--out", str(tmp_path / "bad")]) == 2
