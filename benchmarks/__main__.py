@@ -2,7 +2,7 @@
 
     python -m benchmarks                 # everything (about 15 minutes on 2 cores)
     python -m benchmarks --quick         # shorter runs, under two minutes
-    python -m benchmarks gpi ols         # some: gpi training ols traffic memory optimum sharing sweep copies
+    python -m benchmarks gpi ols         # some: gpi training ols traffic memory optimum sharing sweep copies ray-eval
     python -m benchmarks --output results.md
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
@@ -34,6 +34,8 @@ BENCHMARKS = {
     "sharing": "benchmarks.bench_sharing",
     "sweep": "benchmarks.bench_sweep",
     "copies": "benchmarks.bench_copies",
+    "ray-eval": "benchmarks.bench_ray_eval",
+    "sweep-fig4": "benchmarks.bench_sweep:run_fig4",
 }
 
 
@@ -113,8 +115,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[benchmarks] {name} ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         try:
-            module = importlib.import_module(BENCHMARKS[name])
-            rows.extend(module.run(quick=args.quick))
+            module, _, function = BENCHMARKS[name].partition(":")  # "module" runs module.run
+            rows.extend(getattr(importlib.import_module(module), function or "run")(quick=args.quick))
         except Exception:  # noqa: BLE001 - report and go on with the other benchmarks
             failed = True
             traceback.print_exc()

@@ -1,4 +1,4 @@
-"""Sweeps on a local Ray vs a plain loop: 8 tiny Four-Room runs.
+"""Sweeps on a local Ray vs a plain loop: 8 tiny Four-Room runs; and the Fig. 4 runs (``run_fig4``).
 
 The loop trains the runs one after another in this process (:func:`~sb3_sfgpi.sweep.train_run`, what a sweep's task
 does); the sweep starts a local Ray with the machine's cores, runs them as tasks and shuts Ray down. The runs are
@@ -9,12 +9,15 @@ against its parallelism.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from benchmarks._common import Row
-from sb3_sfgpi.sweep import grid, run_sweep, train_run
+from sb3_sfgpi.sweep import RunSpec, grid, run_sweep, train_run
 
 #: About 3 s per run on one core: short episodes, two small iterations, two test weights, no validation.
 TINY = ("--env", "max_steps=30", "--iterations", "2", "--steps-per-iteration", "1000", "--n-test-weights", "2",
@@ -49,4 +52,51 @@ def run(quick: bool = False) -> list[Row]:
             f"one measurement each; the sweep's time includes starting and stopping Ray ({loop / len(specs):.1f} s "
             "per run in the loop)",
         )
+    ]
+
+
+def _train_command(spec: RunSpec, run_dir: Path) -> list[str]:
+    return [sys.executable, "-m", "sb3_sfgpi.cli", *spec.train_argv(run_dir, resume=False)]
+
+
+def run_fig4(quick: bool = False) -> list[Row]:
+    """
+    The Fig. 4 sweep (MA-SFOLS and Random + GPI, seeds 0-2) with a reduced budget: on a local Ray with the machine's
+    cores, one run after another, and two at a time as ``examples/four_room.py`` did before the sweep.
+    """
+    try:
+        import ray
+    except ImportError:
+        return [Row("sweep", "Fig. 4 runs", "skipped: ray is not installed")]
+    steps = "5000" if quick else "25000"
+    budget = ("--iterations", "2", "--steps-per-iteration", steps)
+    specs = grid(["four-room"], ["ma-sfols", "random"], range(3), options=budget)
+    times = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        for spec in specs:
+            subprocess.run(_train_command(spec, Path(tmp) / "one" / spec.run_name), check=True, capture_output=True)
+        times["one after another"] = time.perf_counter() - start
+        start = time.perf_counter()
+        with ThreadPoolExecutor(2) as pool:
+            commands = [_train_command(spec, Path(tmp) / "two" / spec.run_name) for spec in specs]
+            list(pool.map(lambda command: subprocess.run(command, check=True, capture_output=True), commands))
+        times["two at a time"] = time.perf_counter() - start
+        start = time.perf_counter()
+        run_sweep(specs, Path(tmp) / "sweep", num_cpus=os.cpu_count(), progress_bar=False)
+        ray.shutdown()
+        times["sweep"] = time.perf_counter() - start
+    case = f"6 Fig. 4 runs of 2 × {int(steps):,} joint steps: local Ray ({os.cpu_count()} CPUs)"
+    return [
+        Row(
+            "sweep",
+            f"{case} vs {baseline}",
+            f"{times['sweep']:.0f} s",
+            f"{times[baseline]:.0f} s",
+            times[baseline] / times["sweep"],
+            "≥ 1.82× (≤ 0.55 of the time)" if baseline == "one after another" else "",
+            times[baseline] / times["sweep"] >= 1 / 0.55 if baseline == "one after another" else None,
+            "one measurement each, the sweep's time includes starting and stopping Ray",
+        )
+        for baseline in ("one after another", "two at a time")
     ]

@@ -14,7 +14,9 @@
    GPI at w = [1, 0] waits no longer than actuated for vehicles, and GPI is within 5% of the scalarised
    learners at their weights.
 
-Runs that already exist are resumed (finished ones are skipped), so the script can be interrupted and re-run.
+The training runs go through ``sb3_sfgpi.sweep`` (a local Ray, or the cluster at ``--address``): first the MA-SFOLS
+runs of all seeds, then the scalarised learners of all seeds (their budget is their seed's MA-SFOLS run). Runs that
+already exist are resumed (finished ones are skipped), so the script can be interrupted and re-run.
 
 Example (the defaults; about an hour on two cores)::
 
@@ -33,6 +35,7 @@ import numpy as np
 from sb3_sfgpi.cli import load_domain, main
 from sb3_sfgpi.cli.compare import format_comparison, merge_comparisons
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.sweep import RunSpec, run_sweep
 
 
 def _run(argv: list[str]) -> None:
@@ -42,9 +45,15 @@ def _run(argv: list[str]) -> None:
         sys.exit(code)
 
 
-def _train(out: Path, argv: list[str]) -> None:
-    """Train into ``out``; resume it if it exists (a finished run does nothing)."""
-    _run([*argv, "--out", str(out), *(["--resume"] if RunDirectory(out).is_run() else [])])
+def _train(args: argparse.Namespace, specs: list[RunSpec]) -> None:
+    """Train (or continue) the runs as one sweep; stop if one failed."""
+    for spec in specs:
+        print(f"$ sb3-sfgpi {' '.join(spec.train_argv(args.out / spec.run_name, resume=False))}", flush=True)
+    cpus = 1 + args.eval_workers  # a run and its evaluation processes
+    outcomes = run_sweep(specs, args.out, address=args.address, cpus_per_run=cpus, progress_bar=False)
+    failed = [f"{o.spec.run_name}: {o.error}" for o in outcomes if o.status == "failed"]
+    if failed:
+        sys.exit("runs failed: " + "; ".join(failed))
 
 
 def _tag(w: list[float]) -> str:
@@ -195,6 +204,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--no-fixed", action="store_true", help="skip the scalarised learners")
     parser.add_argument("--episodes", type=int, default=5, help="evaluation episodes per method in the comparison")
     parser.add_argument("--eval-workers", type=int, default=domain.eval_workers, help="evaluation processes")
+    parser.add_argument("--address", help="a Ray cluster to train on (default: RAY_ADDRESS, else a local Ray)")
     parser.add_argument(
         "--speed",
         action="store_true",
@@ -208,12 +218,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def run(args: argparse.Namespace) -> list[tuple[str, bool, str]]:
     budget = ["--iterations", str(args.iterations), "--steps-per-iteration", str(args.steps_per_iteration)]
-    common = [*budget, "--eval-workers", str(args.eval_workers), "--no-progress"]
+    common = (*budget, "--eval-workers", str(args.eval_workers))
     masfols = [args.out / f"ma-sfols-s{seed}" for seed in args.seeds]
-    compare_files = []
-    for seed, run_dir in zip(args.seeds, masfols, strict=True):
-        _train(run_dir, ["train", "traffic", *common, "--seed", str(seed)])
-        compare_files.append(compare_seed(args, common, seed, run_dir))
+    runs = list(zip(args.seeds, masfols, strict=True))
+    _train(args, [RunSpec("traffic", "ma-sfols", seed, None, common, run_dir.name) for seed, run_dir in runs])
+    _train(args, [spec for seed, run_dir in runs for spec in fixed_specs(args, common, seed, run_dir)])
+    compare_files = [compare_seed(args, seed, run_dir) for seed, run_dir in runs]
 
     figures = args.figures
     figures.mkdir(parents=True, exist_ok=True)  # `sb3-sfgpi plot` writes only into directories that exist
@@ -234,13 +244,22 @@ def run(args: argparse.Namespace) -> list[tuple[str, bool, str]]:
     return results
 
 
-def compare_seed(args: argparse.Namespace, common: list[str], seed: int, run_dir: Path) -> Path:
-    """The scalarised learners of ``seed`` (as many steps per agent as its MA-SFOLS run took) and the comparison of
-    that seed's methods on the common evaluation episodes."""
-    fixed = [args.out / f"fixed-w{_tag(w)}-s{seed}" for w in args.fixed_weights]
-    for w, out in zip(args.fixed_weights, fixed, strict=True):
-        fixed_argv = ["train", "traffic", *common, "--seed", str(seed), "--algo", "fixed", "--w", *map(str, w)]
-        _train(out, [*fixed_argv, "--budget-from", str(run_dir)])
+def fixed_paths(args: argparse.Namespace, seed: int) -> list[Path]:
+    return [args.out / f"fixed-w{_tag(w)}-s{seed}" for w in args.fixed_weights]
+
+
+def fixed_specs(args: argparse.Namespace, common: tuple[str, ...], seed: int, run_dir: Path) -> list[RunSpec]:
+    """The scalarised learners of ``seed``: as many steps per agent as its MA-SFOLS run in ``run_dir`` took."""
+    options = (*common, "--budget-from", str(run_dir.resolve()))  # the sweep's workers may run elsewhere
+    return [
+        RunSpec("traffic", "fixed", seed, tuple(w), options, out.name)
+        for w, out in zip(args.fixed_weights, fixed_paths(args, seed), strict=True)
+    ]
+
+
+def compare_seed(args: argparse.Namespace, seed: int, run_dir: Path) -> Path:
+    """The comparison of ``seed``'s methods (GPI, the scalarised learners, SUMO's programs) on common episodes."""
+    fixed = fixed_paths(args, seed)
     compare_file = args.out / f"compare-s{seed}.json"
     if not compare_file.is_file():
         argv = ["compare", str(run_dir), "--episodes", str(args.episodes), "--workers", str(max(args.eval_workers, 1))]

@@ -186,7 +186,7 @@ def run_sweep(
     Run every spec as a Ray task (those that finished with the same spec before are skipped).
 
     :param specs: the runs
-    :param out: the sweep's directory (one run directory per run)
+    :param out: the sweep's directory (one run directory per run); paths in the runs' options should be absolute
     :param address: a Ray cluster to join (``ray start --head`` prints it); None: ``RAY_ADDRESS``, else a local Ray
     :param num_cpus: CPUs of a local Ray (default: the machine's)
     :param cpus_per_run: CPUs Ray reserves for each run
@@ -195,7 +195,7 @@ def run_sweep(
     :return: per run, in the order given, how it ended
     :raises ValueError: two runs with the same name
     """
-    specs, out = list(specs), Path(out)
+    specs, out = list(specs), Path(out).resolve()  # the workers' directory may not be this process's
     names = [spec.run_name for spec in specs]
     if len(set(names)) != len(names):
         raise ValueError(
