@@ -1,8 +1,9 @@
 """Run the benchmarks and print one markdown table.
 
-    python -m benchmarks                 # everything (about 15 minutes on 2 cores)
-    python -m benchmarks --quick         # shorter runs, under two minutes
-    python -m benchmarks gpi ols         # some: gpi training ols traffic memory optimum sharing sweep copies ray-eval
+    python -m benchmarks                 # everything (about 26 minutes on 2 cores, 13 of them sweep-fig4)
+    python -m benchmarks --quick         # shorter runs
+    python -m benchmarks gpi ols         # some: gpi training ols traffic memory optimum sharing copies ray-eval
+                                         # sweep sweep-fig4
     python -m benchmarks --output results.md
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
@@ -103,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
     parser.add_argument("names", nargs="*", choices=[*BENCHMARKS, []], help="benchmarks to run (default: all)")
-    parser.add_argument("--quick", action="store_true", help="short runs (under two minutes in total)")
+    parser.add_argument("--quick", action="store_true", help="shorter runs")
     parser.add_argument("--output", type=Path, help="also write the markdown (header + table) to this file")
     args = parser.parse_args(argv)
     single_thread_torch()
