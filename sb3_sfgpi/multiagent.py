@@ -353,13 +353,13 @@ class MultiAgentRunner:
         for name, slots in self.slots.items():
             rows = [i for i, key in enumerate(slots) if key in observations]
             batched = np.stack([np.asarray(observations[slots[i]]) for i in rows])
-            if len(rows) == len(slots):
+            whole = len(rows) == len(slots)
+            if whole:
                 self.views[name].current_obs = batched
             if name in self.learners:
                 learner = self.learners[name]
-                whole = len(rows) == len(slots)
-                learner._last_obs = batched.copy() if whole else _replaced(learner._last_obs, rows, batched)  # type: ignore[assignment,arg-type]
-                learner._last_original_obs = learner._last_obs
+                last = batched.copy() if whole else _replaced(learner._last_obs, rows, batched)  # type: ignore[arg-type]
+                learner._last_obs = learner._last_original_obs = last  # type: ignore[assignment]
 
     def step(self) -> bool:
         """
