@@ -1,7 +1,8 @@
 """GPI's own estimate against its return, iteration by iteration, for a finished MA-SFOLS run.
 
-For every iteration ``k`` of the run, Π is cut to the policies of iterations ``1..k`` and, for every test weight of
-the run and every agent, two numbers are compared:
+For every iteration ``k`` of the run, Π is cut to what it was after iteration ``k`` (the policies of iterations
+``1..k`` that validation had not retired by then) and, for every test weight of the run and every agent, two numbers
+are compared:
 
 * predicted: ``max_π max_a w · ψπ(s0, a)``, the value GPI expects from the agent's first observation;
 * returned: ``w · (discounted return)`` of the agents acting by GPI (the run's evaluation episode seeds).
@@ -45,12 +46,17 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     run_dir = RunDirectory(args.run_dir)
     config = run_dir.read_config()
-    policy_set = run_dir.load_policy_set(run_dir.read_checkpoint()["n_policies"])
+    state = run_dir.read_checkpoint()
+    policy_set = run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
     env = load_domain(config["domain"]).make_env(**config["env_kwargs"])
     gamma = config["learner_kwargs"].get("gamma", 0.99)
     test_weights = np.asarray(config["test_weights"], dtype=np.float64)
     for iteration in sorted({info.iteration for info in policy_set.infos}):
-        subset = policy_set.subset([i for i, info in enumerate(policy_set.infos) if info.iteration <= iteration])
+        subset = policy_set.subset(
+            i
+            for i, info in enumerate(policy_set.infos)
+            if info.iteration <= iteration and (info.retired is None or info.retired > iteration)
+        )  # Π after iteration k
         predicted, returned = predicted_and_returned(subset, env, test_weights, gamma, config["seed"])
         over = predicted - returned
         print(

@@ -106,18 +106,27 @@ class PolicyValidation:
     would follow it (in a multi-agent env, typically objects its partner takes first). Its value still goes to the
     schedule, so the weights trained, and the learners, are the same with and without validation.
 
+    With ``prune``, validation also looks back after every iteration: as long as GPI does strictly better on the
+    validation weights without one of Π's policies, the policy without which it does best is retired from Π
+    (backward elimination). A policy admitted early can mislead GPI later, once the policies its partner acts
+    by have changed. Retired policies stay in the run's record (see :meth:`~sb3_sfgpi.gpi.GPIPolicy.retire`).
+
     :param n_weights: Dirichlet(1) validation weights besides the extrema; 0: every new policy joins Π (the paper)
     :param episodes: episodes per validation weight
+    :param prune: also retire policies without which GPI does better (needs ``n_weights > 0``)
     """
 
     n_weights: int = 0
     episodes: int = 1
+    prune: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.n_weights, bool) or not isinstance(self.n_weights, int) or self.n_weights < 0:
             raise ValueError(f"n_weights must be a non-negative integer, got {self.n_weights!r}")
         if self.episodes < 1:
             raise ValueError(f"episodes must be at least 1, got {self.episodes}")
+        if self.prune and not self.n_weights:
+            raise ValueError("pruning Π needs validation weights: n_weights must be positive")
 
     def weights(self, reward_dim: int, seed: int) -> np.ndarray:
         """The validation weights of a run with ``seed``, shape ``(reward_dim + n_weights, reward_dim)``."""
@@ -179,7 +188,8 @@ class OLSCallback(BaseCallback):
         self.max_iterations = max_iterations
         self.transfer = transfer
         self.progress_bar = progress_bar
-        self.policy_set = GPIPolicy()
+        self.policy_set = GPIPolicy()  # Π: what GPI acts over
+        self.record = GPIPolicy()  # every policy admitted to Π, those retired since included (what is saved)
         self.history: list[dict[str, Any]] = []
         self.iteration = 0
         self.weights: AgentWeights = {}
@@ -243,6 +253,8 @@ class OLSCallback(BaseCallback):
         for name, value in self._estimate_values().items():
             if self.schedule.add(value, self.weights[name]):  # a new value: the policy is a candidate for Π
                 self._admit(name, value)
+        if self.validation.prune:
+            self._prune()
         self._save_policy_set()  # before the evaluation: its worker processes load Π
         self.history.append(self._evaluate_gpi())
         self.iteration += 1
@@ -303,19 +315,43 @@ class OLSCallback(BaseCallback):
             if self.verbose:
                 print(f"{name}'s policy left out of Π: GPI on the validation weights {after:.4f} with it, "
                       f"{before:.4f} without")  # fmt: skip
+            return
+        self.record.add(self.model.learners[name], value=value, agent=name, iteration=self.iteration + 1)
+
+    def _prune(self) -> None:
+        """Retire from Π, one at a time, the policy without which GPI does best, while it does better without it."""
+        while len(self.policy_set) > 1:
+            others = [[j for j in range(len(self.policy_set)) if j != i] for i in range(len(self.policy_set))]
+            scores = [self._validation_score_of(self.policy_set.subset(rest)) for rest in others]
+            worst = int(np.argmax(scores))
+            if scores[worst] <= self._gpi_validation_score():
+                return
+            if self.verbose:
+                info = self.policy_set.infos[worst]
+                print(f"{info.agent}'s policy of iteration {info.iteration} retired from Π: GPI on the validation "
+                      f"weights {scores[worst]:.4f} without it, {self._gpi_validation_score():.4f} with")  # fmt: skip
+            members = [i for i, info in enumerate(self.record.infos) if info.retired is None]
+            self.record.retire(members[worst], self.iteration + 1)
+            self.policy_set = self.policy_set.subset(others[worst])
+            self._validation_score = scores[worst]
 
     def _gpi_validation_score(self) -> float:
-        """GPI over Π on the validation weights: mean over weights and agents of the discounted w·return."""
+        """GPI over Π on the validation weights (cached until Π changes)."""
         if self._validation_score is None:
-            runner = self.model
-            weights = self.validation.weights(runner.reward_dim, runner.seed)
-            returns = [
-                runner.rollout(self.policy_set.joint_policy(w), self.validation.episodes,
-                               derive_seed(runner.seed, "validation", i))
-                for i, w in enumerate(weights)
-            ]  # fmt: skip
-            self._validation_score = summarize_test_episodes(weights, returns)[0]["mean_return"]
+            self._validation_score = self._validation_score_of(self.policy_set)
         return self._validation_score
+
+    def _validation_score_of(self, policy_set: GPIPolicy) -> float:
+        """GPI over ``policy_set`` on the validation weights: mean over weights and agents of the discounted return."""
+        runner = self.model
+        weights = self.validation.weights(runner.reward_dim, runner.seed)
+        returns = [
+            runner.rollout(
+                policy_set.joint_policy(w), self.validation.episodes, derive_seed(runner.seed, "validation", i)
+            )
+            for i, w in enumerate(weights)
+        ]
+        return summarize_test_episodes(weights, returns)[0]["mean_return"]
 
     # --- GPI evaluation ---------------------------------------------------------------------------------------------
     def _evaluate_gpi(self) -> dict[str, Any]:
@@ -376,8 +412,8 @@ class OLSCallback(BaseCallback):
     def _save_policy_set(self) -> None:
         if self._policy_dir is None and self.evaluation.workers > 0:
             self._policy_dir = RunDirectory.temporary()  # the workers load Π from disk
-        if self._policy_dir is not None and len(self.policy_set):
-            self._policy_dir.save_policy_set(self.policy_set)
+        if self._policy_dir is not None and len(self.record):
+            self._policy_dir.save_policy_set(self.record)
 
     def _write_checkpoint(self, next_weights: AgentWeights | None) -> None:
         if self.run_dir is None:
@@ -385,7 +421,7 @@ class OLSCallback(BaseCallback):
         checkpoint = {
             "iteration": self.iteration,
             "timesteps": self.model.num_timesteps,
-            "n_policies": len(self.policy_set),
+            "n_policies": len(self.record),  # the record's: Π is its members as of "iteration"
             "schedule": self.schedule.state_dict(),
             "next_weights": None if next_weights is None else {a: w.tolist() for a, w in next_weights.items()},
         }
@@ -396,7 +432,8 @@ class OLSCallback(BaseCallback):
         assert self.run_dir is not None
         state = self.run_dir.read_checkpoint()
         self.schedule.load_state_dict(state["schedule"])
-        self.policy_set = self.run_dir.load_policy_set(state["n_policies"])
+        self.record = self.run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
+        self.policy_set = self.record.members()
         self.history = self.run_dir.read_history(state["iteration"])
         self.iteration = state["iteration"]
         self.model.num_timesteps = state["timesteps"]

@@ -10,8 +10,12 @@ Policy-set directory format (``GPIPolicy.save`` / ``GPIPolicy.load``)::
     manifest.json     {"format": "sb3-sfgpi/policy-set", "version": 1, "reward_dim": d,
                        "observation_space": {...}, "action_space": {...}, "network": {...},
                        "policies": [{"file": "policy_000.pt", "weights": [...], "value": [...] | null,
-                                     "agent": str | null, "iteration": int | null}, ...]}
+                                     "agent": str | null, "iteration": int | null,
+                                     "retired": int | null}, ...]}
     policy_000.pt     one SF network's tensors (:mod:`sb3_sfgpi.policy_files`)
+
+A run's directory also keeps the policies that validation retired from Π (``retired``: the iteration after which
+they left), so that a resumed run restores Π exactly; :meth:`GPIPolicy.load` leaves them out unless asked.
 
 The manifest is written last and atomically, so a directory whose save was interrupted keeps the
 previous manifest or has none. Loading never runs code from the directory.
@@ -22,7 +26,7 @@ from __future__ import annotations
 import copy
 import io
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -75,12 +79,14 @@ class PolicyInfo:
     :param value: its value vector ``V^π`` (``None`` if not evaluated)
     :param agent: the agent that learned it
     :param iteration: the OLS iteration that produced it
+    :param retired: the iteration after which policy validation took it out of Π (``None``: in Π)
     """
 
     weights: np.ndarray
     value: np.ndarray | None = None
     agent: str | None = None
     iteration: int | None = None
+    retired: int | None = None
 
     def to_dict(self, file: str) -> dict[str, Any]:
         return {
@@ -89,6 +95,7 @@ class PolicyInfo:
             "value": None if self.value is None else self.value.tolist(),
             "agent": self.agent,
             "iteration": self.iteration,
+            "retired": self.retired,
         }
 
 
@@ -171,6 +178,7 @@ class GPIPolicy:
         value: np.ndarray | list[float] | None = None,
         agent: str | None = None,
         iteration: int | None = None,
+        retired: int | None = None,
     ) -> int:
         """
         Add a copy of a policy's SF network to the set.
@@ -180,6 +188,7 @@ class GPIPolicy:
         :param value: its value vector ``V^π``
         :param agent: the agent that learned it
         :param iteration: the OLS iteration that produced it
+        :param retired: the iteration after which validation took it out of Π (a run's record of Π only)
         :return: its index in the set
         :raises ValueError: a network of another architecture, spaces or reward dimension than the set's
         """
@@ -210,7 +219,7 @@ class GPIPolicy:
         for parameter in copied.parameters():
             parameter.requires_grad_(False)
         self.networks.append(copied)
-        self.infos.append(PolicyInfo(w, v, agent, iteration))
+        self.infos.append(PolicyInfo(w, v, agent, iteration, retired))
         self._stacked = None
         self._weights_cache = None
         return len(self.networks) - 1
@@ -228,14 +237,25 @@ class GPIPolicy:
         self._weights_cache = None
         return self.infos.pop()
 
+    def retire(self, index: int, iteration: int | None) -> None:
+        """
+        Mark the policy at ``index`` as taken out of Π after ``iteration`` (``None``: back in Π). Only a run's
+        record of Π holds retired policies; :meth:`members` is the set GPI acts over.
+        """
+        self.infos[index] = replace(self.infos[index], retired=iteration)
+
     # --- selections ---------------------------------------------------------------------------------------
     def subset(self, indices: Iterable[int]) -> GPIPolicy:
         """A new set holding copies of the policies at ``indices``, in that order, with their infos."""
         subset = GPIPolicy(device=self.device)
         for i in indices:
             info = self.infos[i]
-            subset.add(self.networks[i], info.weights, info.value, info.agent, info.iteration)
+            subset.add(self.networks[i], info.weights, info.value, info.agent, info.iteration, info.retired)
         return subset
+
+    def members(self) -> GPIPolicy:
+        """The policies not retired (see :meth:`retire`), in their order: Π, as GPI acts over it."""
+        return self.subset(i for i, info in enumerate(self.infos) if info.retired is None)
 
     def agent_policies(self, agent: str) -> GPIPolicy:
         """
@@ -426,13 +446,15 @@ class GPIPolicy:
         )
 
     @classmethod
-    def load(cls, path: str | Path, device: th.device | str = "cpu") -> GPIPolicy:
+    def load(cls, path: str | Path, device: th.device | str = "cpu", retired: bool = False) -> GPIPolicy:
         """
         Read a policy-set directory written by :meth:`save`.
 
         :param path: the directory
         :param device: where to put the networks, as in the constructor; the files are read on the CPU, so a set
             saved on one device loads on any other
+        :param retired: also the policies that validation retired from Π (a run's whole record, to resume it);
+            default: Π's members only
         :raises CorruptPolicySetError: a missing, truncated, inconsistent or foreign directory
         :raises ValueError: a tabular set on a device other than the CPU
         """
@@ -458,6 +480,11 @@ class GPIPolicy:
             for entry in manifest["policies"]:
                 if entry.get("value") is not None and not np.isfinite(np.asarray(entry["value"], dtype=float)).all():
                     raise ValueError(f"the value of {entry['file']!r} is not finite")
+                left = entry.get("retired")
+                if left is not None and (isinstance(left, bool) or not isinstance(left, int) or left < 1):
+                    raise ValueError(f"'retired' of {entry['file']!r} must be null or an iteration, got {left!r}")
+                if left is not None and not retired:
+                    continue
                 net = build_network(manifest["network"], observation_space, action_space, reward_dim)
                 net.load_state_dict(network_state(net, read_state_dict(directory, entry["file"])))
                 policy_set.add(
@@ -466,6 +493,7 @@ class GPIPolicy:
                     value=entry.get("value"),
                     agent=entry.get("agent"),
                     iteration=entry.get("iteration"),
+                    retired=left,
                 )
         except CorruptPolicySetError:
             raise

@@ -38,11 +38,12 @@ SETTINGS = (
     "gpi_set",
     "transfer",
     "validation_weights",
+    "prune",
     "sharing",
     "n_envs",
 )
 #: Settings that runs written before they existed lack, with the value that reproduces those runs.
-SETTING_DEFAULTS = {"validation_weights": 0, "sharing": "independent", "n_envs": 1}
+SETTING_DEFAULTS = {"validation_weights": 0, "prune": False, "sharing": "independent", "n_envs": 1}
 
 
 class MASFOLS:
@@ -69,6 +70,8 @@ class MASFOLS:
     :param validation_weights: a new policy joins Π only if GPI does at least as well with it on the simplex
         extrema and this many Dirichlet(1) validation weights (see :class:`~sb3_sfgpi.callbacks.PolicyValidation`;
         0: every new policy joins, as in the paper; not for fixed weights)
+    :param prune: after every iteration, also retire from Π the policies without which GPI does better on the
+        validation weights (needs ``validation_weights > 0``; see :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
     :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (every iteration
         trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
         learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the
@@ -104,6 +107,7 @@ class MASFOLS:
         gpi_set: str = "all",
         transfer: bool = False,
         validation_weights: int = 0,
+        prune: bool = False,
         sharing: str = "independent",
         n_envs: int = 1,
         env_fn: Callable[..., ParallelEnv] | None = None,
@@ -143,6 +147,7 @@ class MASFOLS:
             "gpi_set": gpi_set,
             "transfer": transfer,
             "validation_weights": validation_weights,
+            "prune": prune,
             "sharing": sharing,
             "n_envs": n_envs,
         }
@@ -156,7 +161,7 @@ class MASFOLS:
             steps_per_iteration,
             evaluation,
             ValueEstimation(value_mode, value_episodes),
-            PolicyValidation(validation_weights),
+            PolicyValidation(validation_weights, prune=prune),
             run_dir=self.run_dir,
             transfer=transfer,
             verbose=verbose,

@@ -94,7 +94,7 @@ _SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
     **dict.fromkeys(("env_kwargs", "learner_kwargs"), lambda v: isinstance(v, dict)),
     **dict.fromkeys(("seed", "iterations", "steps_per_iteration", "n_test_weights", "validation_weights"), _integer),
     **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers", "n_envs"), _integer),
-    "transfer": lambda v: isinstance(v, bool),
+    **dict.fromkeys(("transfer", "prune"), lambda v: isinstance(v, bool)),
     "test_weights": lambda v: _weights(v, 2),
     "weights": lambda v: isinstance(v, str) or _weights(v, 1),
 }
@@ -195,20 +195,33 @@ class RunDirectory:
     def save_policy_set(self, policy_set: GPIPolicy) -> None:
         policy_set.save(self.policy_set_dir)
 
-    def load_policy_set(self, n_policies: int | None = None, device: th.device | str = "cpu") -> GPIPolicy:
+    def load_policy_set(
+        self,
+        n_policies: int | None = None,
+        device: th.device | str = "cpu",
+        iteration: int | None = None,
+        record: bool = False,
+    ) -> GPIPolicy:
         """
-        Π as saved, or its first ``n_policies`` (those the checkpoint counts).
+        Π as saved, or as it was at a checkpoint: the first ``n_policies`` policies the run recorded, those that
+        validation retired after ``iteration`` back in Π.
 
+        :param n_policies: the checkpoint's ``n_policies`` (None: every saved policy)
+        :param iteration: the checkpoint's ``iteration`` (None: retired policies stay retired)
+        :param record: every recorded policy, the retired ones marked (what a run continues from); default: Π's
+            members, what GPI acts over
         :raises ValueError: no policy set, or fewer policies than ``n_policies``
         """
         if not self.has_policy_set():
             raise ValueError(f"{self.path} has no policy set yet")
-        policy_set = GPIPolicy.load(self.policy_set_dir, device=device)
-        if n_policies is None:
-            return policy_set
-        if n_policies > len(policy_set):
-            raise ValueError(f"{self.policy_set_dir} holds {len(policy_set)} policies, the checkpoint {n_policies}")
-        return policy_set.subset(range(n_policies))
+        saved = GPIPolicy.load(self.policy_set_dir, device=device, retired=True)
+        if n_policies is not None and n_policies > len(saved):
+            raise ValueError(f"{self.policy_set_dir} holds {len(saved)} policies, the checkpoint {n_policies}")
+        policy_set = saved if n_policies is None else saved.subset(range(n_policies))
+        for i, info in enumerate(policy_set.infos):
+            if iteration is not None and info.retired is not None and info.retired > iteration:
+                policy_set.retire(i, None)
+        return policy_set if record else policy_set.members()
 
     # --- iterations -------------------------------------------------------------------------------------------
     def write_iteration(self, history: Sequence[dict[str, Any]], checkpoint: dict[str, Any]) -> None:

@@ -8,8 +8,11 @@ import sys
 
 import numpy as np
 import pytest
+from sfgpi_envs.domains import four_room
 
 from sb3_sfgpi.cli import main
+from sb3_sfgpi.cli.errors import UsageError
+from sb3_sfgpi.cli.presets import DomainPreset
 
 TRAIN = ["train", "four-room", "--iterations", "2", "--steps-per-iteration", "150", "--no-progress", "--seed", "1"]
 
@@ -80,3 +83,9 @@ def test_plot_mean_over_seeds_forward_fills_runs_that_ended_early():
 
     values = align_runs([{1: 1.0, 2: 2.0}, {1: 3.0}])
     np.testing.assert_allclose(values, [[1.0, 2.0], [3.0, 3.0]])
+
+
+def test_a_preset_with_a_prune_that_is_not_a_bool_is_refused():
+    assert DomainPreset.from_dict("four-room", four_room()).validation_weights > 0
+    with pytest.raises(UsageError, match="prune must be true or false, got 'yes'"):
+        DomainPreset.from_dict("four-room", {**four_room(), "prune": "yes"})

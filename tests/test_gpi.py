@@ -399,6 +399,12 @@ def escaping_file_name(directory: Path) -> None:
     (directory / MANIFEST).write_text(json.dumps(manifest))
 
 
+def retired_not_an_iteration(directory: Path) -> None:
+    manifest = json.loads((directory / MANIFEST).read_text())
+    manifest["policies"][1]["retired"] = True
+    (directory / MANIFEST).write_text(json.dumps(manifest))
+
+
 def missing_key(directory: Path) -> None:
     manifest = json.loads((directory / MANIFEST).read_text())
     del manifest["observation_space"]
@@ -429,6 +435,7 @@ def missing_key(directory: Path) -> None:
         (future_version, "unsupported policy-set version 99"),
         (escaping_file_name, r"\.\./outside\.pt.* is missing"),
         (missing_key, "observation_space"),
+        (retired_not_an_iteration, "'retired' of 'policy_001.pt' must be null or an iteration, got True"),
     ],
 )
 def test_corrupt_directories_fail_clearly(saved_set, corrupt, message):
@@ -507,3 +514,21 @@ def test_the_memory_a_manifest_declares_is_what_its_networks_take(spec, observat
     net = build_network(spec, observation_space, spaces.Discrete(4), 3)
     taken = sum(parameter.numel() * parameter.element_size() for parameter in net.parameters())
     assert declared_bytes(spec, observation_space, spaces.Discrete(4), 3) == taken
+
+
+def test_retired_policies_are_saved_and_left_out_of_a_plain_load(saved_set):
+    record = GPIPolicy.load(saved_set)
+    assert all(info.retired is None for info in record.infos)  # files written before retirement existed read alike
+    record.retire(1, 3)
+    assert [info.retired for info in record.infos][:2] == [None, 3]
+    members = record.members()
+    assert len(members) == len(record) - 1
+    obs = np.arange(3)
+    kept = [i for i in range(len(record)) if i != 1]
+    np.testing.assert_allclose(members.successor_features(obs), record.subset(kept).successor_features(obs))
+    record.save(saved_set)
+    assert len(GPIPolicy.load(saved_set)) == len(members)
+    everything = GPIPolicy.load(saved_set, retired=True)
+    assert [info.retired for info in everything.infos] == [info.retired for info in record.infos]
+    everything.retire(1, None)
+    assert len(everything.members()) == len(record)

@@ -60,6 +60,7 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
         (["--learner", "nosuchkwarg=1"], "unexpected keyword argument 'nosuchkwarg'"),
         (["--learner", "learning_rate=abc"], "learning_rate must be a number >= 0 or a schedule, got 'abc'"),
         (["--algo", "fixed", "--w", "1", "0", "0", "--validation-weights", "3"], "not for --algo fixed"),
+        (["--validation-weights", "0", "--prune"], "--prune needs validation weights (--validation-weights N"),
     ],
 )
 def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, argv, message):
@@ -95,6 +96,7 @@ def test_numpy_scalars_are_accepted_as_options():
         (["--n-test-weights", "5"], "--n-test-weights 5 would change the run's n_test_weights (2)"),
         (["--transfer"], "--transfer True would change the run's transfer (False)"),
         (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (12)"),
+        (["--prune"], "--prune True would change the run's prune (False)"),
     ],
 )
 def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):

@@ -242,6 +242,19 @@ def test_load_policy_set_returns_the_first_n_policies(tmp_path, policy_set):
             np.testing.assert_allclose(loaded.successor_features(obs), policy_set.successor_features(obs)[:n])
 
 
+def test_load_policy_set_restores_pi_as_it_was_at_a_checkpoint(tmp_path, policy_set):
+    run_dir = RunDirectory(tmp_path)
+    policy_set.retire(0, 2)  # retired after iteration 2
+    policy_set.retire(2, 3)  # retired after iteration 3: a save made after the checkpoint of iteration 2
+    run_dir.save_policy_set(policy_set)
+    assert [i.agent for i in run_dir.load_policy_set().infos] == [policy_set.infos[i].agent for i in (1, 3)]
+    at_2 = run_dir.load_policy_set(3, iteration=2, record=True)  # the checkpoint of iteration 2 counted 3
+    assert [info.retired for info in at_2.infos] == [2, None, None]
+    members = run_dir.load_policy_set(3, iteration=2)
+    np.testing.assert_allclose(members.successor_features(np.array([[1, 2, 1]])),
+                               policy_set.subset([1, 2]).successor_features(np.array([[1, 2, 1]])))  # fmt: skip
+
+
 def test_load_policy_set_refuses_more_policies_than_saved(tmp_path, policy_set):
     run_dir = RunDirectory(tmp_path)
     run_dir.save_policy_set(policy_set)

@@ -13,23 +13,25 @@ from sb3_sfgpi import EvaluationConfig, MultiAgentRunner, OLSCallback, PolicyVal
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import summarize_test_episodes
+from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.multiagent import LearnerFactory, default_learner_factory
 from sb3_sfgpi.schedules import RandomSchedule
 
 TEST_WEIGHTS = random_weights(2, 5, rng=0)
-LIAR_CALL = 3  # the learners are made agent by agent: the 4th is agent_1's of iteration 1
+LIAR = ("agent_1", 1)  # agent_1's learner of the second iteration (iteration 2 in Π's infos)
 
 
-def liar_factory() -> LearnerFactory:
-    """The chain's learners, except that agent_1's learner of iteration 1 promises 1000 of each objective everywhere
-    and never learns: its greedy policy takes action A in every state, (13, 22) on the chain instead of the optimal
-    29 of objective 0."""
-    make, calls = default_learner_factory(**CHAIN_LEARNER), itertools.count()
+def liar_factory(liar: tuple[str, int] = LIAR) -> LearnerFactory:
+    """The chain's learners, except that one agent's learner of one iteration (0-based) promises 1000 of each
+    objective everywhere and never learns: its greedy policy takes action A in every state, (13, 22) on the chain
+    instead of the optimal 29 of objective 0. It is known by its seed, so a resumed run makes it again."""
+    make = default_learner_factory(**CHAIN_LEARNER)
+    agent, iteration = liar
 
-    def factory(agent, view, weights, seed):
-        model = make(agent, view, weights, seed)
-        if next(calls) == LIAR_CALL:
+    def factory(name, view, weights, seed):
+        model = make(name, view, weights, seed)
+        if seed == derive_seed(0, iteration, agent):
             model.policy.fill(1000.0)
             model.train = lambda gradient_steps, batch_size=100: None
         return model
@@ -37,11 +39,20 @@ def liar_factory() -> LearnerFactory:
     return factory
 
 
-def run(n_weights: int, steps: int = 200, iterations: int = 3) -> OLSCallback:
-    runner = MultiAgentRunner(ParallelChainEnv(2), liar_factory(), seed=0)
-    validation = PolicyValidation(n_weights)
+def run(
+    n_weights: int,
+    steps: int = 200,
+    iterations: int = 3,
+    liar: tuple[str, int] = LIAR,
+    prune: bool = False,
+    **kwargs,
+) -> OLSCallback:
+    runner = MultiAgentRunner(ParallelChainEnv(2), liar_factory(liar), seed=0)
+    validation = PolicyValidation(n_weights, prune=prune)
     evaluation = EvaluationConfig(TEST_WEIGHTS)
-    callback = OLSCallback(RandomSchedule(), steps, evaluation, validation=validation, max_iterations=iterations)
+    callback = OLSCallback(
+        RandomSchedule(), steps, evaluation, validation=validation, max_iterations=iterations, **kwargs
+    )
     runner.learn(iterations * steps, callback)
     return callback
 
@@ -106,3 +117,53 @@ def test_validation_is_refused_where_agents_act_on_their_own_policies():
         OLSCallback(RandomSchedule(), 10, own, validation=PolicyValidation(2))
     with pytest.raises(ValueError, match="own"):
         MASFOLS(ParallelChainEnv(2), weights=[0.5, 0.5], validation_weights=2)
+
+
+# --- pruning --------------------------------------------------------------------------------------------------------
+FIRST_LIAR = ("agent_0", 0)  # the first policy of the run: it joins an empty Π, and GPI follows it everywhere
+
+
+def test_pruning_retires_a_policy_that_misleads_gpi_once_better_ones_are_there():
+    kept, pruned = run(4, liar=FIRST_LIAR), run(4, liar=FIRST_LIAR, prune=True)
+    liar = ("agent_0", 1)
+    assert liar in [(info.agent, info.iteration) for info in kept.policy_set.infos]  # admission alone keeps it
+    assert liar not in [(info.agent, info.iteration) for info in pruned.policy_set.infos]
+    retired = {(info.agent, info.iteration): info.retired for info in pruned.record.infos}
+    assert retired[liar] == 1  # retired after the iteration that made it: agent_1's first policy replaces it
+    assert [i for i in retired.values() if i is not None] == [1]
+    assert len(pruned.record) == len(pruned.policy_set) + 1
+    # training is the same; GPI is better from the first iteration on
+    assert json.dumps(pruned.schedule.state_dict()) == json.dumps(kept.schedule.state_dict())
+    for with_it, without_it in zip(pruned.history, kept.history, strict=True):
+        assert with_it["mean_return"] > without_it["mean_return"]
+        assert with_it["n_policies"] < without_it["n_policies"]
+
+
+def test_after_pruning_no_single_policy_left_out_makes_gpi_better():
+    callback = run(4, steps=40, iterations=6, prune=True)  # short training: policies of every quality
+    runner, policy_set = callback.model, callback.policy_set
+    score = validation_score(runner, policy_set)
+    assert score == pytest.approx(callback._gpi_validation_score())
+    for i in range(len(policy_set)):
+        assert validation_score(runner, policy_set.subset(j for j in range(len(policy_set)) if j != i)) <= score
+
+
+def test_a_pruned_run_continues_exactly_and_saves_its_record(tmp_path):
+    whole = run(4, liar=FIRST_LIAR, prune=True, run_dir=tmp_path / "whole")
+    run(4, iterations=1, liar=FIRST_LIAR, prune=True, run_dir=tmp_path / "cut")
+    continued = run(4, liar=FIRST_LIAR, prune=True, run_dir=tmp_path / "cut", resume=True)
+    assert [r["mean_return"] for r in continued.history] == [r["mean_return"] for r in whole.history]
+    for a, b in ((continued.record, whole.record), (continued.policy_set, whole.policy_set)):
+        assert [(i.agent, i.iteration, i.retired) for i in a.infos] == [
+            (i.agent, i.iteration, i.retired) for i in b.infos
+        ]
+    saved = GPIPolicy.load(tmp_path / "cut" / "policy_set")  # a user's load: Π, without the retired policy
+    assert [(i.agent, i.iteration) for i in saved.infos] == [(i.agent, i.iteration) for i in whole.policy_set.infos]
+    assert len(GPIPolicy.load(tmp_path / "cut" / "policy_set", retired=True)) == len(whole.record)
+
+
+def test_pruning_needs_validation_weights():
+    with pytest.raises(ValueError, match="n_weights must be positive"):
+        PolicyValidation(0, prune=True)
+    with pytest.raises(ValueError, match="n_weights must be positive"):
+        MASFOLS(ParallelChainEnv(2), prune=True)

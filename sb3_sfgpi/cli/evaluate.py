@@ -32,8 +32,8 @@ def run(args: argparse.Namespace) -> int:
     run_dir = RunDirectory(args.run_dir)
     config = run_dir.read_config(required=CLI_SETTINGS)
     which = args.gpi_set or config.get("gpi_set", "all")
-    n_policies = run_dir.read_checkpoint()["n_policies"] if run_dir.has_checkpoint() else None
-    policy_set = run_dir.load_policy_set(n_policies, device=args.device)  # what the last checkpoint counts
+    state = run_dir.read_checkpoint() if run_dir.has_checkpoint() else {"n_policies": None, "iteration": None}
+    policy_set = run_dir.load_policy_set(state["n_policies"], args.device, state["iteration"])  # Π at the checkpoint
     if which == "ccs":
         policy_set = policy_set.ccs_policies()
     w = validate_weights(args.w, policy_set.reward_dim, "--w")

@@ -42,6 +42,8 @@ class DomainPreset:
     :param gpi_set: ``"all"`` or ``"ccs"``
     :param validation_weights: Dirichlet(1) validation weights deciding which new policies join Π (0: all join; see
         :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
+    :param prune: also retire, after every iteration, the policies without which GPI does better on the validation
+        weights (with ``validation_weights > 0``)
     :param eval_workers: default number of evaluation processes
     :param objectives: the objectives' names, one per reward component
     :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions
@@ -64,6 +66,7 @@ class DomainPreset:
     value_mode: str = "joint"
     gpi_set: str = "all"
     validation_weights: int = 0
+    prune: bool = False
     eval_workers: int = 0
     objectives: list[str] | None = None
     baselines: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -125,6 +128,8 @@ class DomainPreset:
                 raise UsageError(f"domain {self.name!r}: {key} must be a positive integer, got {value!r}")
         if "policy" not in self.learner_kwargs:
             raise UsageError(f"domain {self.name!r}: learner_kwargs lacks 'policy'")
+        if not isinstance(self.prune, bool):
+            raise UsageError(f"domain {self.name!r}: prune must be true or false, got {self.prune!r}")
 
 
 def _required(spec: Field) -> bool:

@@ -44,7 +44,9 @@ def add_parser(sub: Any) -> None:
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--out", type=Path, help="run directory (default: runs/<domain>-<algo>-s<seed>)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
-    train.add_argument("--transfer", action="store_true", help="start new learners from the best policy in the set")
+    train.add_argument(
+        "--transfer", action="store_true", default=None, help="start new learners from the best policy in the set"
+    )
     train.add_argument(
         "--sharing",
         choices=["independent", "shared"],
@@ -73,6 +75,12 @@ def add_parser(sub: Any) -> None:
         metavar="N",
         help="a new policy joins the set only if GPI does at least as well with it on the simplex extrema and N "
         "Dirichlet(1) validation weights (0: every new policy joins; default: the domain's; not for --algo fixed)",
+    )
+    train.add_argument(
+        "--prune",
+        action=argparse.BooleanOptionalAction,
+        help="after every iteration, also retire from the set the policies without which GPI does better on the "
+        "validation weights (needs validation weights; default: the domain's)",
     )
     train.add_argument(
         "--torch-threads",
@@ -167,13 +175,14 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "seed": args.seed,
         "iterations": iterations,
         "steps_per_iteration": steps_per_iteration,
-        "transfer": args.transfer,
+        "transfer": bool(args.transfer),
         "env_kwargs": {**preset.env_kwargs, **key_values(args.env, "--env")},
         "policy": learner_kwargs.pop("policy"),
         "learner_kwargs": learner_kwargs,
         "n_test_weights": n_test_weights,
         "weights": ALGORITHMS.get(args.algo) or check_weights(args.w, "--w"),
-        "validation_weights": _validation_weights(args, preset),
+        "validation_weights": (validation_weights := _validation_weights(args, preset)),
+        "prune": _prune(args, preset, validation_weights),
         "sharing": args.sharing or SETTING_DEFAULTS["sharing"],
         "n_envs": SETTING_DEFAULTS["n_envs"] if args.n_envs is None else args.n_envs,
     }
@@ -191,6 +200,15 @@ def _validation_weights(args: argparse.Namespace, preset: DomainPreset) -> int:
     if args.validation_weights < 0:
         raise UsageError(f"--validation-weights must be 0 or more, got {args.validation_weights}")
     return args.validation_weights
+
+
+def _prune(args: argparse.Namespace, preset: DomainPreset, validation_weights: int) -> bool:
+    """Whether validation also prunes Π: the option's, else the domain's where there are validation weights."""
+    if args.prune is None:
+        return preset.prune and validation_weights > 0
+    if args.prune and not validation_weights:
+        raise UsageError("--prune needs validation weights (--validation-weights N with N > 0)")
+    return args.prune
 
 
 def _fixed_budget(args: argparse.Namespace, iterations: int, steps_per_iteration: int) -> dict[str, Any]:
@@ -225,11 +243,12 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
         "--n-test-weights",
         "--transfer",
         "--validation-weights",
+        "--prune",
         "--sharing",
         "--n-envs",
     ):
         key = option[2:].replace("-", "_")
-        given = getattr(args, key) is not None and getattr(args, key) is not False
+        given = getattr(args, key) is not None
         if given and config[key] != saved.get(key, SETTING_DEFAULTS.get(key)):
             raise UsageError(f"--resume: {option} {config[key]} would change the run's {key} ({saved.get(key)})")
     for key in ("domain", "algorithm", "seed", "weights"):
@@ -270,6 +289,7 @@ def _model(
         gpi_set=preset.gpi_set,
         transfer=config["transfer"],
         validation_weights=config["validation_weights"],
+        prune=config["prune"],
         sharing=config["sharing"],
         n_envs=config["n_envs"],
         run_info=config,
