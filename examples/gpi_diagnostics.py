@@ -52,11 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     gamma = config["learner_kwargs"].get("gamma", 0.99)
     test_weights = np.asarray(config["test_weights"], dtype=np.float64)
     for iteration in sorted({info.iteration for info in policy_set.infos}):
-        subset = policy_set.subset(
-            i
-            for i, info in enumerate(policy_set.infos)
-            if info.iteration <= iteration and (info.retired is None or info.retired > iteration)
-        )  # Π after iteration k
+        subset = policy_set.as_of(iteration).members()  # Π after iteration k
         predicted, returned = predicted_and_returned(subset, env, test_weights, gamma, config["seed"])
         over = predicted - returned
         print(

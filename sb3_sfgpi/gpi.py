@@ -257,6 +257,19 @@ class GPIPolicy:
         """The policies not retired (see :meth:`retire`), in their order: Π, as GPI acts over it."""
         return self.subset(i for i, info in enumerate(self.infos) if info.retired is None)
 
+    def as_of(self, iteration: int) -> GPIPolicy:
+        """
+        A run's record as it was after ``iteration``: the policies of iterations up to it (and those without one),
+        the retirements that came later undone.
+        """
+        record = self.subset(
+            i for i, info in enumerate(self.infos) if info.iteration is None or info.iteration <= iteration
+        )
+        for i, info in enumerate(record.infos):
+            if info.retired is not None and info.retired > iteration:
+                record.retire(i, None)
+        return record
+
     def agent_policies(self, agent: str) -> GPIPolicy:
         """
         The policies ``agent`` learned itself (e.g. the set of an a priori scalarised learner).

@@ -218,9 +218,8 @@ class RunDirectory:
         if n_policies is not None and n_policies > len(saved):
             raise ValueError(f"{self.policy_set_dir} holds {len(saved)} policies, the checkpoint {n_policies}")
         policy_set = saved if n_policies is None else saved.subset(range(n_policies))
-        for i, info in enumerate(policy_set.infos):
-            if iteration is not None and info.retired is not None and info.retired > iteration:
-                policy_set.retire(i, None)
+        if iteration is not None:
+            policy_set = policy_set.as_of(iteration)
         return policy_set if record else policy_set.members()
 
     # --- iterations -------------------------------------------------------------------------------------------

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -532,3 +533,13 @@ def test_retired_policies_are_saved_and_left_out_of_a_plain_load(saved_set):
     assert [info.retired for info in everything.infos] == [info.retired for info in record.infos]
     everything.retire(1, None)
     assert len(everything.members()) == len(record)
+
+
+def test_as_of_is_the_record_after_an_iteration(saved_set):
+    record = GPIPolicy.load(saved_set)
+    for i, (iteration, retired) in enumerate([(1, 2), (1, None), (2, 3)]):
+        record.infos[i] = replace(record.infos[i], iteration=iteration, retired=retired)
+    assert [(i.iteration, i.retired) for i in record.as_of(1).infos] == [(1, None), (1, None)]
+    assert [(i.iteration, i.retired) for i in record.as_of(2).infos] == [(1, 2), (1, None), (2, None)]
+    assert [(i.iteration, i.retired) for i in record.as_of(3).infos] == [(1, 2), (1, None), (2, 3)]
+    assert len(record.as_of(2).members()) == 2
