@@ -22,9 +22,10 @@ def four_room() -> dict[str, Any]:
     0.20-0.54 with ``"xy"``, 0.65-1.08 with ``"full"``, 0.84-1.32 with ``"own"``.
 
     The learners plan on their replay buffer's model and explore optimistically (``planning_sweeps``,
-    ``optimistic_init``), and a new policy joins Π only if GPI does no worse with it on 15 validation weights
+    ``optimistic_init``), and a new policy joins Π only if GPI does no worse with it on 12 validation weights
     (``validation_weights``): without validation GPI fell from 1.289 at iteration 4 to 1.159 at 10 (3 seeds), with it
-    the curve ends at its best (README "Four-Room").
+    the curve ends at its best. After every iteration validation also retires the policies without which GPI does
+    better (``prune``): 1.303 ± 0.015 → 1.322 ± 0.006 at iteration 10 (README "Four-Room").
     """
     from sfgpi_envs.four_room import FourRoomParallelEnv
 
@@ -49,6 +50,7 @@ def four_room() -> dict[str, Any]:
         "iterations": 10,
         "n_test_weights": 12,
         "validation_weights": 12,  # a new policy joins Π only if GPI does no worse with it on validation weights
+        "prune": True,  # and a policy leaves Π when GPI does better without it
         "objectives": ["blue squares", "green triangles", "red circles"],  # objects collected, one reward each
         "value_episodes": 1,
         "eval_episodes": 1,

@@ -96,7 +96,7 @@ def test_numpy_scalars_are_accepted_as_options():
         (["--n-test-weights", "5"], "--n-test-weights 5 would change the run's n_test_weights (2)"),
         (["--transfer"], "--transfer True would change the run's transfer (False)"),
         (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (12)"),
-        (["--prune"], "--prune True would change the run's prune (False)"),
+        (["--no-prune"], "--prune False would change the run's prune (True)"),
     ],
 )
 def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):
