@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_sfgpi.cli.plot import a_priori_reference
+from sb3_sfgpi.cli.plot import a_priori_reference, final_test_returns, own_weight_return
 from sb3_sfgpi.cli.presets import load_domain
-from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.common.weights import format_weights, random_weights
 from sb3_sfgpi.plots import align_runs, ols_ended
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.sweep import RunSpec, run_sweep
@@ -113,6 +113,8 @@ def main() -> None:
             print(f"  final / a priori: {mean[-1] / reference.mean:.3f}")
     if reference is not None:
         print(f"{reference.label}: {reference.mean:.3f} ± {reference.std:.3f}")
+        masfols = [run for run, (algo, _) in zip(runs, jobs, strict=True) if algo == "ma-sfols"]
+        print_per_weight(masfols, apriori)
 
 
 def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
@@ -134,6 +136,27 @@ def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
         for seed in args.apriori_seeds
         for i, w in enumerate(weights)
     ]
+
+
+def print_per_weight(runs: list[Path], apriori: list[Path]) -> None:
+    """Per test weight with a-priori learners, GPI's final w·return (``runs``) beside theirs (mean ± std over
+    seeds)."""
+    trained: dict[tuple[float, ...], list[float]] = {}
+    for run in apriori:
+        w, value = own_weight_return(RunDirectory(run))
+        trained.setdefault(tuple(np.round(w, 6)), []).append(value)
+    gpi: dict[tuple[float, ...], list[float]] = {key: [] for key in trained}
+    for run in runs:
+        for w, vector in final_test_returns(RunDirectory(run)):
+            gpi.get(tuple(np.round(w, 6)), []).append(float(w @ vector))
+    print("\n| test weight | MA-SFOLS + GPI, final | a priori | ratio |\n|---|---|---|---|")
+    for key, returns in gpi.items():
+        ratio = np.mean(returns) / np.mean(trained[key])
+        print(f"| {format_weights(np.asarray(key))} | {mean_std(returns)} | {mean_std(trained[key])} | {ratio:.3f} |")
+
+
+def mean_std(values: list[float]) -> str:
+    return f"{np.mean(values):.3f} ± {np.std(values):.3f}"
 
 
 def extend(row: np.ndarray, pad: int, ols_ended: bool) -> np.ndarray:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +14,10 @@ from hypothesis import strategies as st
 from sb3_sfgpi import plots
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.compare import merge_comparisons
+from sb3_sfgpi.cli.plot import final_test_returns, own_weight_return
 from sb3_sfgpi.run_directory import RunDirectory
+
+EXAMPLES = Path(__file__).parents[1] / "examples"
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 STEP_METRICS = [["vehicle_wait_total", "vehicle waiting time [s]"], ["pedestrian_wait_total", "pedestrian wait [s]"]]
@@ -147,6 +152,26 @@ def test_plot_fixed_runs_draw_the_a_priori_learners_at_their_own_weights(tmp_pat
     assert ax["legend"] == ["MA-SFOLS + GPI (1 seed)", label, "exact optimum"]
     lines = dict(ax["lines"])
     assert lines[label][0, 1] == pytest.approx((1.5 + 3.0) / 2) and lines["exact optimum"][0, 1] == 3.25
+
+
+def test_final_test_returns_average_the_agents_and_own_weight_return_reads_the_runs_weight(tmp_path):
+    run = write_fixed_run(tmp_path / "f", [0.25, 0.75], 0, ([2.0, 0.0], [0.0, 4.0]), elsewhere=6.0)
+    (w0, v0), (w1, v1) = final_test_returns(run)
+    assert (w0.tolist(), v0.tolist()) == ([1.0, 0.0], [6.0, 0.0])
+    assert (w1.tolist(), v1.tolist()) == ([0.25, 0.75], [1.0, 2.0])
+    w, value = own_weight_return(run)
+    assert w.tolist() == [0.25, 0.75] and value == pytest.approx(0.25 * 1.0 + 0.75 * 2.0)
+
+
+def test_the_four_room_example_prints_gpi_beside_the_a_priori_learners_per_weight(tmp_path, capsys):
+    spec = importlib.util.spec_from_file_location("four_room_example", EXAMPLES / "four_room.py")
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    gpi = [write_fixed_run(tmp_path / f"g{s}", [0.5, 0.5], s, ([r, r], [r, r])) for s, r in ((0, 1.0), (1, 3.0))]
+    apriori = [write_fixed_run(tmp_path / f"f{s}", [0.5, 0.5], s, ([1.0, 1.0], [1.0, 1.0])) for s in (0, 1)]
+    example.print_per_weight([run.path for run in gpi], [run.path for run in apriori])
+    rows = capsys.readouterr().out.strip().splitlines()
+    assert rows[-1] == "| [0.5,0.5] | 2.000 ± 1.000 | 1.000 ± 0.000 | 2.000 |" and len(rows) == 3
 
 
 @pytest.mark.parametrize(

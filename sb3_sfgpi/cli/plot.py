@@ -122,20 +122,42 @@ def a_priori_reference(paths: list[Path]) -> plots.Reference:
         config = run_dir.read_config()
         if config.get("algorithm") != "fixed":
             raise UsageError(f"--fixed: {path} is not a run of `train --algo fixed`")
-        w = np.asarray(config["weights"], dtype=np.float64)
-        if not run_dir.has_evaluations():
-            raise UsageError(f"--fixed: {path} has no evaluation yet")
-        at_w = [
-            row for row in run_dir.read_history()[-1]["test"] if np.abs(np.asarray(row["weights"]) - w).max() <= 1e-3
-        ]
-        if not at_w:
-            raise UsageError(f"--fixed: {path} was not evaluated at its own weight {w.tolist()}")
-        returns = [w @ np.asarray(agent["discounted"]) for agent in at_w[0]["agents"].values()]
-        by_seed.setdefault(int(config["seed"]), []).append(float(np.mean(returns)))
+        by_seed.setdefault(int(config["seed"]), []).append(own_weight_return(run_dir)[1])
     means = [np.mean(values) for values in by_seed.values()]
     n = len(means)
     label = f"learners trained a priori ({len(paths)} runs, {n} seed{'s' * (n > 1)})"
     return plots.Reference(label, float(np.mean(means)), float(np.std(means)))
+
+
+def own_weight_return(run_dir: RunDirectory) -> tuple[np.ndarray, float]:
+    """
+    A fixed-weight run's weight ``w`` and its last evaluation's ``w · discounted return`` there (the test weight
+    within 1e-3 of ``w``, max-norm; mean over agents).
+
+    :raises UsageError: the run has no evaluation, or none at its own weight
+    """
+    w = np.asarray(run_dir.read_config()["weights"], dtype=np.float64)
+    if not run_dir.has_evaluations():
+        raise UsageError(f"--fixed: {run_dir} has no evaluation yet")
+    at_w = [vector for test_w, vector in final_test_returns(run_dir) if np.abs(test_w - w).max() <= 1e-3]
+    if not at_w:
+        raise UsageError(f"--fixed: {run_dir} was not evaluated at its own weight {w.tolist()}")
+    return w, float(w @ at_w[0])
+
+
+def final_test_returns(run_dir: RunDirectory) -> list[tuple[np.ndarray, np.ndarray]]:
+    """
+    The run's last evaluation: every test weight with the discounted return vector there, mean over agents.
+
+    :param run_dir: a run with at least one evaluation
+    """
+    return [
+        (
+            np.asarray(row["weights"], dtype=np.float64),
+            np.mean([np.asarray(agent["discounted"], dtype=np.float64) for agent in row["agents"].values()], axis=0),
+        )
+        for row in run_dir.read_history()[-1]["test"]
+    ]
 
 
 def _from_comparison(args: argparse.Namespace) -> list[Path]:
