@@ -113,8 +113,8 @@ def main() -> None:
             print(f"  final / a priori: {mean[-1] / reference.mean:.3f}")
     if reference is not None:
         print(f"{reference.label}: {reference.mean:.3f} ± {reference.std:.3f}")
-        masfols = [run for run, (algo, _) in zip(runs, jobs, strict=True) if algo == "ma-sfols"]
-        print_per_weight(masfols, apriori)
+        for algo in ("ma-sfols", "random"):
+            print_per_weight([run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo], apriori, algo)
 
 
 def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
@@ -138,7 +138,7 @@ def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
     ]
 
 
-def print_per_weight(runs: list[Path], apriori: list[Path]) -> None:
+def print_per_weight(runs: list[Path], apriori: list[Path], label: str) -> None:
     """Per test weight with a-priori learners, GPI's final w·return (``runs``) beside theirs (mean ± std over
     seeds)."""
     trained: dict[tuple[float, ...], list[float]] = {}
@@ -149,7 +149,7 @@ def print_per_weight(runs: list[Path], apriori: list[Path]) -> None:
     for run in runs:
         for w, vector in final_test_returns(RunDirectory(run)):
             gpi.get(tuple(np.round(w, 6)), []).append(float(w @ vector))
-    print("\n| test weight | MA-SFOLS + GPI, final | a priori | ratio |\n|---|---|---|---|")
+    print(f"\n| test weight | {label} + GPI, final | a priori | ratio |\n|---|---|---|---|")
     for key, returns in gpi.items():
         ratio = np.mean(returns) / np.mean(trained[key])
         print(f"| {format_weights(np.asarray(key))} | {mean_std(returns)} | {mean_std(trained[key])} | {ratio:.3f} |")

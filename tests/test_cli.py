@@ -13,6 +13,7 @@ from sfgpi_envs.domains import four_room
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import DomainPreset
+from sb3_sfgpi.common.weights import random_weights
 
 TRAIN = ["train", "four-room", "--iterations", "2", "--steps-per-iteration", "150", "--no-progress", "--seed", "1"]
 
@@ -52,6 +53,18 @@ def test_evaluate_prints_per_agent_returns(run_dir, capsys):
     assert "agent_0: return [" in out and "agent_1: return [" in out
 
 
+def test_evaluate_on_random_weights_prints_the_mean_of_their_w_returns(run_dir, capsys):
+    assert main(["evaluate", str(run_dir), "--random-weights", "3", "--seed", "7"]) == 0
+    line = capsys.readouterr().out.splitlines()[-1]
+    assert line.startswith("  3 Dirichlet(1) weights (seed 7): w·return (discounted, γ=0.95, mean over agents) ")
+    values = []
+    for w in random_weights(3, 3, rng=7):
+        assert main(["evaluate", str(run_dir), "--w", *map(repr, w.tolist()), "--seed", "7"]) == 0
+        out = capsys.readouterr().out
+        values.append(np.mean([float(row.rsplit(" ", 1)[1]) for row in out.splitlines() if "w·return" in row]))
+    assert line.split("mean over agents) ")[1].split(" ± ")[0] == f"{np.mean(values):.4f}"
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
@@ -60,6 +73,7 @@ def test_evaluate_prints_per_agent_returns(run_dir, capsys):
         (["evaluate", "RUN", "--w", "0", "0", "0"], "all zero"),
         (["evaluate", "NOT_A_RUN", "--w", "1", "0", "0"], "not a run directory"),
         (["evaluate", "RUN", "--w", "1", "0", "0", "--seed", "-1"], "--seed must be 0 or more"),
+        (["evaluate", "RUN", "--random-weights", "0"], "--random-weights must be positive, got 0"),
         (["train", "no-such-domain"], "unknown domain"),
         (["plot", "NOT_A_RUN", "-o", "x.png"], "not a run directory"),
     ],

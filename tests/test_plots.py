@@ -169,9 +169,10 @@ def test_the_four_room_example_prints_gpi_beside_the_a_priori_learners_per_weigh
     spec.loader.exec_module(example)
     gpi = [write_fixed_run(tmp_path / f"g{s}", [0.5, 0.5], s, ([r, r], [r, r])) for s, r in ((0, 1.0), (1, 3.0))]
     apriori = [write_fixed_run(tmp_path / f"f{s}", [0.5, 0.5], s, ([1.0, 1.0], [1.0, 1.0])) for s in (0, 1)]
-    example.print_per_weight([run.path for run in gpi], [run.path for run in apriori])
+    example.print_per_weight([run.path for run in gpi], [run.path for run in apriori], "random")
     rows = capsys.readouterr().out.strip().splitlines()
-    assert rows[-1] == "| [0.5,0.5] | 2.000 ± 1.000 | 1.000 ± 0.000 | 2.000 |" and len(rows) == 3
+    assert rows[0] == "| test weight | random + GPI, final | a priori | ratio |" and len(rows) == 3
+    assert rows[-1] == "| [0.5,0.5] | 2.000 ± 1.000 | 1.000 ± 0.000 | 2.000 |"
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,5 @@
-"""``sb3-sfgpi evaluate RUN --w ...``: GPI over a run's policy set acting for any weights."""
+"""``sb3-sfgpi evaluate RUN --w ...`` (or ``--random-weights N``): GPI over a run's policy set acting for any
+weights."""
 
 from __future__ import annotations
 
@@ -10,9 +11,10 @@ import numpy as np
 
 from sb3_sfgpi.cli.compare import episode_metrics
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, load_domain
+from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_domain
 from sb3_sfgpi.common.rollouts import run_episodes
-from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.common.weights import random_weights, validate_weights
+from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.run_directory import RunDirectory
 
 
@@ -20,7 +22,14 @@ def add_parser(sub: Any) -> None:
     """The ``evaluate`` sub-command's arguments."""
     evaluate = sub.add_parser("evaluate", help="run GPI from a saved run for preference weights w")
     evaluate.add_argument("run_dir", type=Path)
-    evaluate.add_argument("--w", type=float, nargs="+", required=True, help=f"preference weights, {WEIGHT_HELP}")
+    which_weights = evaluate.add_mutually_exclusive_group(required=True)
+    which_weights.add_argument("--w", type=float, nargs="+", help=f"preference weights, {WEIGHT_HELP}")
+    which_weights.add_argument(
+        "--random-weights",
+        type=int,
+        metavar="N",
+        help="N weights drawn from Dirichlet(1) with --seed: print GPI's mean w·return over them",
+    )
     evaluate.add_argument("--episodes", type=int, default=1)
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--device", default="cpu", help="where the policy set acts: cpu, auto, cuda, cuda:N")
@@ -28,7 +37,7 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run GPI for ``--w`` and print every agent's vector return."""
+    """Run GPI for ``--w`` and print every agent's vector return, or its mean w·return over random weights."""
     run_dir = RunDirectory(args.run_dir)
     config = run_dir.read_config(required=CLI_SETTINGS)
     which = args.gpi_set or config.get("gpi_set", "all")
@@ -36,7 +45,9 @@ def run(args: argparse.Namespace) -> int:
     policy_set = run_dir.load_policy_set(state["n_policies"], args.device, state["iteration"])  # Π at the checkpoint
     if which == "ccs":
         policy_set = policy_set.ccs_policies()
-    w = validate_weights(args.w, policy_set.reward_dim, "--w")
+    if args.random_weights is not None and args.random_weights < 1:
+        raise UsageError(f"--random-weights must be positive, got {args.random_weights}")
+    w = None if args.w is None else validate_weights(args.w, policy_set.reward_dim, "--w")
     if args.episodes < 1:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
     if args.seed < 0:
@@ -44,11 +55,30 @@ def run(args: argparse.Namespace) -> int:
     preset = load_domain(config["domain"])
     env = preset.build_env(config["env_kwargs"])
     gamma = config["learner_kwargs"].get("gamma", 0.99)
+    print(f"GPI over {len(policy_set)} policies ({which}), {args.episodes} episode(s) per weight")
     try:
-        result = run_episodes(env, policy_set.joint_policy(w), args.episodes, gamma, seed=args.seed)
+        if w is None:
+            _print_random_weights(env, policy_set, args.random_weights, args.episodes, gamma, args.seed)
+        else:
+            _print_one_weight(env, policy_set, w, preset, config, args.episodes, gamma, args.seed)
     finally:
         env.close()
-    print(f"GPI over {len(policy_set)} policies ({which}), w={np.round(w, 4).tolist()}, {args.episodes} episode(s)")
+    return 0
+
+
+def _print_one_weight(
+    env: Any,
+    policy_set: GPIPolicy,
+    w: np.ndarray,
+    preset: DomainPreset,
+    config: dict,
+    episodes: int,
+    gamma: float,
+    seed: int,
+) -> None:
+    """Every agent's vector return acting by GPI for ``w``, and the preset's episode metrics."""
+    result = run_episodes(env, policy_set.joint_policy(w), episodes, gamma, seed=seed)
+    print(f"  w={np.round(w, 4).tolist()}")
     names = preset.objective_names(config["env_kwargs"])
     if names and len(names) == len(w):
         print(f"  objectives: {', '.join(names)}")
@@ -62,4 +92,15 @@ def run(args: argparse.Namespace) -> int:
     for key, label in preset.episode_metrics:
         if key in metrics:
             print(f"  {label}: {metrics[key]['mean']:.2f} ± {metrics[key]['std']:.2f} over episodes")
-    return 0
+
+
+def _print_random_weights(env: Any, policy_set: GPIPolicy, n: int, episodes: int, gamma: float, seed: int) -> None:
+    """GPI's w · discounted return (mean over agents) for ``n`` Dirichlet(1) weights of ``seed``: mean ± std."""
+    values = []
+    for w in random_weights(policy_set.reward_dim, n, rng=seed):
+        result = run_episodes(env, policy_set.joint_policy(w), episodes, gamma, seed=seed)
+        values.append(np.mean([w @ result.mean_discounted(agent) for agent in result.discounted]))
+    print(
+        f"  {n} Dirichlet(1) weights (seed {seed}): w·return (discounted, γ={gamma}, mean over agents) "
+        f"{np.mean(values):.4f} ± {np.std(values):.4f} (std over weights)"
+    )
