@@ -16,6 +16,8 @@ episodes).
 
 from __future__ import annotations
 
+import itertools
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +37,8 @@ METRIC_LABELS = {
     "ccs_size": "CCS size",
 }
 LABELS = {"ma-sfols": "MA-SFOLS + GPI", "random": "Random + GPI", "fixed": "fixed-weight learners"}
+REFERENCE_COLORS = ("black", "tab:gray", "tab:brown")  # reference lines, apart from the algorithms' colours
+TITLE_WIDTH = 60  # characters per line of a title: a 6-inch figure holds about this many
 
 
 @dataclass(frozen=True)
@@ -140,15 +144,15 @@ def plot_returns(
         label = f"{LABELS.get(algorithm, algorithm)} ({_seeds_label(values, iterations)})"
         ax.plot(iterations, mean, marker="o", label=label)
         ax.fill_between(iterations, mean - std, mean + std, alpha=0.2)
-    for reference in references:
+    for reference, color in zip(references, itertools.cycle(REFERENCE_COLORS)):
         low, high = reference.mean - reference.std, reference.mean + reference.std
-        line = ax.axhline(reference.mean, linestyle="--", linewidth=1.2, label=reference.label)
+        line = ax.axhline(reference.mean, color=color, linestyle="--", linewidth=1.2, label=reference.label)
         if reference.std > 0:
             ax.axhspan(low, high, color=line.get_color(), alpha=0.1)
     ax.set_xlabel("iteration")
     ax.xaxis.set_major_locator(_pyplot().MaxNLocator(integer=True))
     ax.set_ylabel(METRIC_LABELS.get(metric, metric.replace("_", " ")))
-    ax.set_title(title or "GPI over the policy set, mean over test weights and agents")
+    ax.set_title(textwrap.fill(title or "GPI over the policy set, mean over test weights and agents", TITLE_WIDTH))
     ax.grid(alpha=0.3)
     ax.legend()
     return _save(fig, output)
