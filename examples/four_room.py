@@ -148,7 +148,9 @@ def print_per_weight(runs: list[Path], apriori: list[Path], label: str) -> None:
     gpi: dict[tuple[float, ...], list[float]] = {key: [] for key in trained}
     for run in runs:
         for w, vector in final_test_returns(RunDirectory(run)):
-            gpi.get(tuple(np.round(w, 6)), []).append(float(w @ vector))
+            key = tuple(np.round(w, 6))
+            if key in gpi:  # test weights without a-priori learners are left out
+                gpi[key].append(float(w @ vector))
     print(f"\n| test weight | {label} + GPI, final | a priori | ratio |\n|---|---|---|---|")
     for key, returns in gpi.items():
         ratio = np.mean(returns) / np.mean(trained[key])
