@@ -90,7 +90,14 @@ def traffic() -> dict[str, Any]:
             "max_green": 50,
             # vehicles, pedestrians: see above; the other objectives of the menu (chosen with `--env objectives=[...]`)
             # scaled to per-step rewards of the order of the vehicles' on the default network under random actions
-            "reward_scale": {"vehicle_waiting": 0.01, "pedestrian_waiting": 0.25, "vehicle_queue": 0.1, "co2": 0.005},
+            "reward_scale": {
+                "vehicle_waiting": 0.01,
+                "pedestrian_waiting": 0.25,
+                "vehicle_delay": 0.01,
+                "pedestrian_delay": 0.25,
+                "vehicle_queue": 0.1,
+                "co2": 0.005,
+            },
         },
         "learner_kwargs": {
             "policy": "MlpPolicy",

@@ -77,6 +77,8 @@ class WaitingRecorder(traci.StepListener):
         self.veh_on = defaultdict(set)
         self.ped_wait = defaultdict(lambda: defaultdict(float))  # tls -> person -> seconds standing
         self.ped_on = defaultdict(set)
+        self.veh_gone = defaultdict(float)  # tls -> waiting time of the vehicles that left its lanes
+        self.ped_gone = defaultdict(float)
 
     def step(self, t):
         api = self.api
@@ -87,6 +89,8 @@ class WaitingRecorder(traci.StepListener):
                     on.add(v)
                     if v not in self.entry[j]:
                         self.entry[j][v] = api.vehicle.getAccumulatedWaitingTime(v)
+            for v in self.veh_on[j] - on:
+                self.veh_gone[j] += api.vehicle.getAccumulatedWaitingTime(v) - self.entry[j].pop(v)
             self.veh_on[j] = on
             persons = set()
             for e in self.ped_edges[j]:
@@ -94,6 +98,8 @@ class WaitingRecorder(traci.StepListener):
                     persons.add(p)
                     if api.person.getWaitingTime(p) > 0:
                         self.ped_wait[j][p] += 1.0
+            for p in self.ped_on[j] - persons:
+                self.ped_gone[j] += self.ped_wait[j].pop(p, 0.0)
             self.ped_on[j] = persons
         return True
 
@@ -101,6 +107,11 @@ class WaitingRecorder(traci.StepListener):
         w_v = sum(self.api.vehicle.getAccumulatedWaitingTime(v) - self.entry[j][v] for v in self.veh_on[j])
         w_p = sum(self.ped_wait[j].get(p, 0.0) for p in self.ped_on[j])
         return w_v, w_p
+
+    def waiting_so_far(self, j):
+        """Waiting time spent at intersection ``j`` since the start, by the vehicles and persons gone too."""
+        w_v, w_p = self.waiting(j)
+        return self.veh_gone[j] + w_v, self.ped_gone[j] + w_p
 
 
 class PhaseRecorder(traci.StepListener):
@@ -215,6 +226,28 @@ def test_reward_is_change_of_waiting_times(make_env, listen, backend):
             prev[j] = (w_v, w_p)
             seen_v, seen_p = max(seen_v, w_v), max(seen_p, w_p)
     assert seen_v > 0 and seen_p > 0  # both objectives were exercised
+
+
+def test_delay_rewards_are_the_waiting_spent_during_the_step(make_env, listen):
+    env = make_env(seed=2, num_seconds=200, objectives=["vehicle_delay", "pedestrian_delay"])
+    env.reset()
+    api = env.sim.api
+    rec = WaitingRecorder(api, env.possible_agents)
+    listen(api, rec)
+    prev = {j: (0.0, 0.0) for j in env.possible_agents}
+    returns = np.zeros(2)
+    rng = np.random.default_rng(3)
+    while env.agents:
+        _, rewards, _, _, infos = env.step({a: int(rng.integers(2)) for a in env.agents})
+        for j in env.possible_agents:
+            spent = rec.waiting_so_far(j)
+            np.testing.assert_allclose(rewards[j], np.subtract(prev[j], spent), atol=1e-3)
+            prev[j] = spent
+            returns += rewards[j]
+    episode = infos[env.possible_agents[0]]["episode"]
+    totals = [episode["vehicle_waiting_time_total"], episode["pedestrian_waiting_time_total"]]
+    assert min(totals) > 0  # both objectives were exercised
+    np.testing.assert_allclose(-returns, totals, rtol=1e-6)  # the returns are the episode's waiting, undiscounted
 
 
 # --------------------------------------------------------------------------------------------------

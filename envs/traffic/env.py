@@ -546,8 +546,8 @@ class TrafficSignalEnv(ParallelEnv):
 
         :return: the metrics (keys :data:`EPISODE_METRIC_KEYS`).
         """
-        veh = sum(m.vehicle_done + last.vehicle_wait for m, last in zip(self._monitors, self._last, strict=True))
-        ped = sum(m.pedestrian_done + last.pedestrian_wait for m, last in zip(self._monitors, self._last, strict=True))
+        veh = sum(last.vehicle_wait_episode for last in self._last)
+        ped = sum(last.pedestrian_wait_episode for last in self._last)
         dep_v, arr_v, dep_p, arr_p = self._counts
         return {
             "vehicle_waiting_time_total": float(veh),

@@ -47,6 +47,10 @@ class Measurement(NamedTuple):
     """Halting vehicles on the incoming lanes."""
     co2_mg: float
     """CO2 emitted on the incoming lanes since the episode began [mg] (0 without ``emissions``)."""
+    vehicle_wait_episode: float
+    """Waiting time [s] spent at this intersection by all vehicles since the episode began (gone ones included)."""
+    pedestrian_wait_episode: float
+    """Waiting time [s] spent at this intersection by all pedestrians since the episode began (gone ones included)."""
 
 
 class IntersectionMonitor:
@@ -153,7 +157,9 @@ class IntersectionMonitor:
         for p in gone:
             self.pedestrian_done += pacc.pop(p)
         halting = sum(self._lane_halting(lane) for lane, _ in self._veh_lanes)
-        return Measurement(w_v, len(self._veh_on), w_p, len(on), halting, self.co2_mg)
+        vehicles, pedestrians = len(self._veh_on), len(on)
+        spent_v, spent_p = self.vehicle_done + w_v, self.pedestrian_done + w_p
+        return Measurement(w_v, vehicles, w_p, pedestrians, halting, self.co2_mg, spent_v, spent_p)
 
     def lane_features(self) -> tuple[list[float], list[float]]:
         """Density and queue of every incoming lane, each divided by the lane's capacity and clipped to 1.

@@ -4,18 +4,22 @@ Every component is measured at the light's own intersection from two consecutive
 :class:`~.monitor.Measurement` values (the previous decision and this one), so that a larger reward is
 always better:
 
-==========================  ======================================================================  =========
-name                        reward of a decision step                                               unit
-==========================  ======================================================================  =========
-``"vehicle_waiting"``       decrease of the waiting time of the vehicles on the incoming lanes      s
+==========================  ==========================================================================  =========
+name                        reward of a decision step                                                   unit
+==========================  ==========================================================================  =========
+``"vehicle_waiting"``       decrease of the waiting time of the vehicles on the incoming lanes          s
                             (paper Eq. 24)
-``"pedestrian_waiting"``    decrease of the waiting time of the pedestrians on the approach of      s
+``"pedestrian_waiting"``    decrease of the waiting time of the pedestrians on the approach of          s
                             the crossings (paper Eq. 25); needs signalised crossings
-``"vehicle_queue"``         minus the vehicles halting (below 0.1 m/s) on the incoming lanes        vehicles
+``"vehicle_delay"``         minus the waiting time the vehicles spent at the intersection during the    s
+                            step, those that left during it included (summed over an episode: minus
+                            the total that ``vehicle_waiting_time_mean`` averages)
+``"pedestrian_delay"``      the same for the pedestrians on the approach of the crossings               s
+``"vehicle_queue"``         minus the vehicles halting (below 0.1 m/s) on the incoming lanes            vehicles
                             (sumo-rl's ``queue`` reward)
-``"co2"``                   minus the CO2 the vehicles on the incoming lanes emitted during the     g
+``"co2"``                   minus the CO2 the vehicles on the incoming lanes emitted during the         g
                             step (SUMO's default emission model)
-==========================  ======================================================================  =========
+==========================  ==========================================================================  =========
 """
 
 from __future__ import annotations
@@ -53,6 +57,17 @@ MENU: dict[str, Objective] = {
             "pedestrian_waiting",
             "pedestrian waiting [s]",
             lambda p, c: p.pedestrian_wait - c.pedestrian_wait,
+            needs_pedestrians=True,
+        ),
+        Objective(
+            "vehicle_delay",
+            "vehicle waiting [s]",
+            lambda p, c: p.vehicle_wait_episode - c.vehicle_wait_episode,
+        ),
+        Objective(
+            "pedestrian_delay",
+            "pedestrian waiting [s]",
+            lambda p, c: p.pedestrian_wait_episode - c.pedestrian_wait_episode,
             needs_pedestrians=True,
         ),
         Objective("vehicle_queue", "halting vehicles", lambda p, c: -float(c.halting)),
