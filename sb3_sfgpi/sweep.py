@@ -189,7 +189,8 @@ def run_sweep(
     :param out: the sweep's directory (one run directory per run); paths in the runs' options should be absolute
     :param address: a Ray cluster to join (``ray start --head`` prints it); None: ``RAY_ADDRESS``, else a local Ray
     :param num_cpus: CPUs of a local Ray (default: the machine's)
-    :param cpus_per_run: CPUs Ray reserves for each run
+    :param cpus_per_run: CPUs Ray reserves for each run (at most the cluster's: a task asking more would wait for
+        ever)
     :param max_retries: how often a run whose worker died, or that stopped with an error, is tried again
     :param progress_bar: a bar over the runs
     :return: per run, in the order given, how it ended
@@ -208,9 +209,8 @@ def run_sweep(
     bar = tqdm(total=len(specs), initial=len(outcomes), desc="sweep", unit="run", disable=not progress_bar)
     if pending:
         ray = _ray(address, num_cpus)
-        task = ray.remote(train_run).options(
-            num_cpus=cpus_per_run, max_retries=max_retries, retry_exceptions=[RuntimeError]
-        )
+        cpus = min(cpus_per_run, ray.cluster_resources().get("CPU", cpus_per_run))
+        task = ray.remote(train_run).options(num_cpus=cpus, max_retries=max_retries, retry_exceptions=[RuntimeError])
         refs = {task.remote(spec, out / spec.run_name): spec for spec in pending}
         while refs:
             (ready,), _ = ray.wait(list(refs), num_returns=1)

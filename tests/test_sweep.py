@@ -115,3 +115,20 @@ def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(tmp_path)
         assert [o.status for o in again] == ["skipped"] * 4 and [o.attempts for o in again] == [2, 1, 1, 1]
     finally:
         ray.shutdown()
+
+
+def test_runs_asking_more_cpus_than_the_cluster_has_still_run(tmp_path):
+    ray = pytest.importorskip("ray")
+    specs = grid(["four-room"], ["ma-sfols"], [0], options=[*TINY, "--iterations", "1"])
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        outcomes: list = []
+        sweep = threading.Thread(
+            target=lambda: outcomes.extend(run_sweep(specs, tmp_path, cpus_per_run=3, progress_bar=False)), daemon=True
+        )
+        sweep.start()
+        sweep.join(timeout=120)  # the run takes seconds
+        assert not sweep.is_alive(), "a run asking 3 CPUs of a 1-CPU cluster was never scheduled"
+        assert [o.status for o in outcomes] == ["finished"]
+    finally:
+        ray.shutdown()

@@ -26,6 +26,8 @@ TINY = [
     "--iterations", "2", "--steps-per-iteration", "16", "--n-test-weights", "3", "--no-progress", "--seed", "3",
     "--env", "num_seconds=40", "--learner", "learning_starts=12", "--learner", "batch_size=8",
 ]  # fmt: skip
+#: every policy joins Π, as the tests below count them (validation and pruning: tests/test_validation.py)
+ALL_JOIN = ["--validation-weights", "0"]
 
 
 def _random_policy_set(tmp_path):
@@ -115,7 +117,7 @@ def _evaluation(run_dir):
 def test_train_traffic_workers_crash_and_resume(tmp_path, monkeypatch, capsys):
     """`train traffic` writes a run; evaluating in workers or in-process gives the same run; a SUMO crash keeps
     the last checkpoint and --resume finishes exactly the run that was never interrupted."""
-    train = ["train", "traffic", *TINY, "--algo", "random"]  # random weights: never ends before the cap
+    train = ["train", "traffic", *TINY, *ALL_JOIN, "--algo", "random"]  # random weights: never ends before the cap
     reference, parallel, crashed = tmp_path / "in-process", tmp_path / "workers", tmp_path / "crashed"
     assert main([*train, "--eval-workers", "0", "--out", str(reference)]) == 0
     assert main([*train, "--eval-workers", "2", "--out", str(parallel)]) == 0
@@ -157,7 +159,7 @@ def test_train_traffic_workers_crash_and_resume(tmp_path, monkeypatch, capsys):
 
 def test_fixed_weight_learners_compare_and_plots(tmp_path):
     masfols, fixed = tmp_path / "masfols", tmp_path / "fixed"
-    assert main(["train", "traffic", *TINY, "--eval-workers", "0", "--out", str(masfols)]) == 0
+    assert main(["train", "traffic", *TINY, *ALL_JOIN, "--eval-workers", "0", "--out", str(masfols)]) == 0
     assert main(["train", "traffic", *TINY, "--algo", "fixed", "--w", "0.4", "0.6", "--out", str(fixed)]) == 0
     config = json.loads((fixed / "run.json").read_text())
     # the same steps per agent as an MA-SFOLS run of this budget, in one iteration
