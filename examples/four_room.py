@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_sfgpi.cli.plot import a_priori_reference, final_test_returns, own_weight_return
+from sb3_sfgpi.cli.plot import a_priori_reference, final_test_returns, own_weight_return, same_weight
 from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.weights import format_weights, random_weights
 from sb3_sfgpi.plots import align_runs, ols_ended
@@ -140,21 +140,19 @@ def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
 
 def print_per_weight(runs: list[Path], apriori: list[Path], label: str) -> None:
     """Per test weight with a-priori learners, GPI's final w·return (``runs``) beside theirs (mean ± std over
-    seeds)."""
-    trained: dict[tuple[float, ...], list[float]] = {}
-    for run in apriori:
-        w, value = own_weight_return(RunDirectory(run))
-        trained.setdefault(tuple(np.round(w, 6)), []).append(value)
-    gpi: dict[tuple[float, ...], list[float]] = {key: [] for key in trained}
-    for run in runs:
-        for w, vector in final_test_returns(RunDirectory(run)):
-            key = tuple(np.round(w, 6))
-            if key in gpi:  # test weights without a-priori learners are left out
-                gpi[key].append(float(w @ vector))
+    seeds); test weights without a-priori learners are left out."""
+    trained = [own_weight_return(RunDirectory(run)) for run in apriori]
+    weights: list[np.ndarray] = []
+    for w, _ in trained:
+        if not any(same_weight(w, seen) for seen in weights):
+            weights.append(w)
+    finals = [final_test_returns(RunDirectory(run)) for run in runs]
     print(f"\n| test weight | {label} + GPI, final | a priori | ratio |\n|---|---|---|---|")
-    for key, returns in gpi.items():
-        ratio = np.mean(returns) / np.mean(trained[key])
-        print(f"| {format_weights(np.asarray(key))} | {mean_std(returns)} | {mean_std(trained[key])} | {ratio:.3f} |")
+    for w in weights:
+        theirs = [value for trained_w, value in trained if same_weight(trained_w, w)]
+        ours = [float(w @ vector) for final in finals for test_w, vector in final if same_weight(test_w, w)]
+        ratio = np.mean(ours) / np.mean(theirs)
+        print(f"| {format_weights(w)} | {mean_std(ours)} | {mean_std(theirs)} | {ratio:.3f} |")
 
 
 def mean_std(values: list[float]) -> str:

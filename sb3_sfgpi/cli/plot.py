@@ -139,10 +139,15 @@ def own_weight_return(run_dir: RunDirectory) -> tuple[np.ndarray, float]:
     w = np.asarray(run_dir.read_config()["weights"], dtype=np.float64)
     if not run_dir.has_evaluations():
         raise UsageError(f"--fixed: {run_dir} has no evaluation yet")
-    at_w = [vector for test_w, vector in final_test_returns(run_dir) if np.abs(test_w - w).max() <= 1e-3]
+    at_w = [vector for test_w, vector in final_test_returns(run_dir) if same_weight(test_w, w)]
     if not at_w:
         raise UsageError(f"--fixed: {run_dir} was not evaluated at its own weight {w.tolist()}")
     return w, float(w @ at_w[0])
+
+
+def same_weight(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two weight vectors are the same weight: within 1e-3 of each other, max-norm (run files round them)."""
+    return bool(np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-3)
 
 
 def final_test_returns(run_dir: RunDirectory) -> list[tuple[np.ndarray, np.ndarray]]:
