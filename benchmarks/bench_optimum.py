@@ -7,6 +7,9 @@
 * **Exact CCS**: OLS with the exact oracle until its queue is empty: the CCS size and the number of OLS iterations a
   perfect learner would need, and the exact optimal mean of ``w · V*`` over the 12 test weights of
   ``examples/sfols_four_room.py`` (the quality reference of its GPI curve).
+* **Rounds of two weights** (two agents, as MA-SFOLS hands them out): with the exact oracle, the best value over the
+  policies found, as a fraction of the optimum (mean over the 12 test weights), after each of the first 8 rounds, for
+  ``OLSSchedule(batch="top")`` (Algorithm 1) and ``batch="spread"``.
 """
 
 from __future__ import annotations
@@ -21,10 +24,12 @@ from sfgpi_envs.four_room_optimum import FourRoomOptimum
 
 from benchmarks._common import Row, fmt_time, interleaved_samples
 from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.schedules import OLS_BATCHES, OLSSchedule
 
 NAME = "optimum"
 GAMMA = 0.95
 START = 12 * 13  # the start cell (12, 0) as a flat index
+ROUNDS = 8
 
 
 def _reference():
@@ -61,6 +66,7 @@ def run(quick: bool = False) -> list[Row]:
     ols_time = time.perf_counter() - start
     test_weights = random_weights(3, 12, rng=0)  # the example's draw: default_rng(0).dirichlet(ones(3), size=12)
     mean = np.mean([optimum.value(u) for u in test_weights])
+    rounds = {batch: _rounds_of_two(optimum, batch, test_weights) for batch in OLS_BATCHES}
     return [
         Row(
             "four-room optimum",
@@ -77,4 +83,26 @@ def run(quick: bool = False) -> list[Row]:
             f"|CCS| = {len(ccs)}, {iterations} OLS iterations",
             note=f"{fmt_time(ols_time)}; exact mean w·V* over the example's 12 test weights: {mean:.4f}",
         ),
+        *(
+            Row(
+                "four-room optimum",
+                f"OLS rounds of 2 weights (batch={batch}), exact oracle: best found / optimum after rounds 1-{ROUNDS}",
+                " ".join(f"{x:.3f}" for x in fractions),
+                note="mean over the example's 12 test weights",
+            )
+            for batch, fractions in rounds.items()
+        ),
     ]
+
+
+def _rounds_of_two(optimum: FourRoomOptimum, batch: str, test_weights: np.ndarray) -> list[float]:
+    """After each round of two weights solved exactly: max over the values found of w·V, / w·V*, mean over w."""
+    schedule = OLSSchedule(batch)
+    schedule.start(3)
+    best = np.array([optimum.value(u) for u in test_weights])
+    rng, fractions = np.random.default_rng(0), []
+    for _ in range(ROUNDS):
+        for w in schedule.next_weights(["agent_0", "agent_1"], rng).values():
+            schedule.add(optimum.vector_value(w), w)
+        fractions.append(float(np.mean(np.max(test_weights @ np.array(schedule.ols.values).T, axis=1) / best)))
+    return fractions

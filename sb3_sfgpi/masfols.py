@@ -28,6 +28,7 @@ from sb3_sfgpi.schedules import make_schedule
 SETTINGS = (
     "policy",
     "weights",
+    "ols_batch",
     "steps_per_iteration",
     "learner_kwargs",
     "test_weights",
@@ -43,7 +44,7 @@ SETTINGS = (
     "n_envs",
 )
 #: Settings that runs written before they existed lack, with the value that reproduces those runs.
-SETTING_DEFAULTS = {"validation_weights": 0, "prune": False, "sharing": "independent", "n_envs": 1}
+SETTING_DEFAULTS = {"validation_weights": 0, "prune": False, "sharing": "independent", "n_envs": 1, "ols_batch": "top"}
 
 
 class MASFOLS:
@@ -56,6 +57,10 @@ class MASFOLS:
     :param weights: ``"ols"`` (MA-SFOLS), ``"random"`` (Random + GPI: Dirichlet(1) weights) or array-like fixed
         weights (a priori scalarised learners: every agent trains for them; each agent is evaluated by GPI over
         its own policies, at these weights unless ``test_weights`` says otherwise)
+    :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue: ``"top"``, the
+        highest priorities (Algorithm 1); ``"spread"``, each agent's weight ranked as if the weights handed out
+        before it in the iteration brought no improvement (see :class:`~sb3_sfgpi.schedules.OLSSchedule`; only
+        with ``weights="ols"``)
     :param steps_per_iteration: joint env steps every agent trains for its weights in one iteration
     :param learner_kwargs: further SFDQN arguments of the learners (learning rate, γ, exploration, ...)
     :param test_weights: the weights GPI is evaluated on after every iteration: an array ``(n, d)``, or a number
@@ -96,6 +101,7 @@ class MASFOLS:
         env: ParallelEnv,
         policy: str = "TabularPolicy",
         weights: str | np.ndarray | Sequence[float] = "ols",
+        ols_batch: str = "top",
         steps_per_iteration: int = 10_000,
         learner_kwargs: Mapping[str, Any] | None = None,
         test_weights: int | np.ndarray | Sequence[Sequence[float]] | None = None,
@@ -137,6 +143,7 @@ class MASFOLS:
         self.settings = {
             "policy": policy,
             "weights": weights if isinstance(weights, str) else np.asarray(weights, dtype=np.float64).tolist(),
+            "ols_batch": ols_batch,
             "steps_per_iteration": steps_per_iteration,
             "learner_kwargs": learner_kwargs,
             "test_weights": test_weights.tolist(),
@@ -157,7 +164,7 @@ class MASFOLS:
             eval_env_fn or env_fn, dict(eval_env_kwargs or env_kwargs or {}),
         )  # fmt: skip
         self.callback = OLSCallback(
-            make_schedule(weights),
+            make_schedule(weights, ols_batch),
             steps_per_iteration,
             evaluation,
             ValueEstimation(value_mode, value_episodes),

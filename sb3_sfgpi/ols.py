@@ -25,7 +25,7 @@ The queue starts with the simplex extrema at infinite priority; once it is empty
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -124,13 +124,27 @@ class OLS:
         self._queue: list[tuple[float, np.ndarray]] = [(math.inf, e) for e in simplex_extrema(self.reward_dim)]
 
     # --- the loop -------------------------------------------------------------------------------------
-    def next_weight(self) -> np.ndarray | None:
+    def next_weight(self, pending: Sequence[np.ndarray] = ()) -> np.ndarray | None:
         """
         Pop the weight with the highest priority.
 
+        With ``pending`` weights (handed out already for the same round, their policies not trained yet), the queued
+        weights are ranked by the priority they would have if the pending weights were visited and brought no
+        improvement: a corner next to a pending weight then has little left to gain, and a round of several agents
+        spreads over the simplex instead of training nearly the same weight twice. Infinite priorities (the simplex
+        extrema) stay first.
+
+        :param pending: weights handed out but not solved yet (empty: the highest stored priority, Algorithm 1)
         :return: the weight, or None when the queue is empty
         """
-        return self._queue.pop(0)[1].copy() if self._queue else None
+        if not self._queue:
+            return None
+        index = 0
+        if len(pending) > 0:
+            pending = [validate_weights(w, self.reward_dim, "pending weight") for w in pending]
+            believed = [p if math.isinf(p) else self._priority(u, pending) for p, u in self._queue]
+            index = int(np.argmax(believed))  # the first of equal priorities: the queue's order
+        return self._queue.pop(index)[1].copy()
 
     def add_solution(self, value, weight) -> list[int]:
         """
@@ -279,10 +293,11 @@ class OLS:
     def _max_value(self, w: np.ndarray) -> float:
         return float(np.max(np.array(self._values) @ w)) if self._values else -math.inf
 
-    def _priority(self, w: np.ndarray) -> float:
-        if not self._visited:
+    def _priority(self, w: np.ndarray, pending: Sequence[np.ndarray] = ()) -> float:
+        """Eq. 15 at ``w``, with the ``pending`` weights counted as visited without improvement."""
+        if not self._visited and len(pending) == 0:
             return math.inf
-        visited = np.array(self._visited)
+        visited = np.array([*self._visited, *pending])
         bounds = [self._max_value(u) for u in visited]
         result = linprog(-w, A_ub=visited, b_ub=bounds, bounds=[(None, None)] * self.reward_dim, method="highs")
         if result.status == 3:  # unbounded

@@ -5,7 +5,9 @@ rule that a policy joins Π only when its value is new, and the CCS reported aft
 for all of them. They differ in the weights they hand out:
 
 * :class:`OLSSchedule` (MA-SFOLS): the corner weights of highest optimistic priority, simplex extrema first, one
-  per agent; Dirichlet(1) random weights for the agents beyond the queue; None (stop) when the queue is empty.
+  per agent (``batch="top"``, Algorithm 1), or each agent's chosen given the weights handed out before it in the
+  round (``batch="spread"``); Dirichlet(1) random weights for the agents beyond the queue; None (stop) when the
+  queue is empty.
 * :class:`RandomSchedule` (Random + GPI): Dirichlet(1) random weights for every agent, never stops by itself.
 * :class:`FixedSchedule` (a priori scalarised learners): the same weights for every agent in every iteration;
   every policy joins Π.
@@ -27,6 +29,10 @@ from sb3_sfgpi.ols import OLS
 
 #: agent -> the weights it trains for in the next iteration
 AgentWeights = dict[str, np.ndarray]
+#: the ways :class:`OLSSchedule` takes a round's weights from the queue
+OLS_BATCHES = ("top", "spread")
+#: settings that checkpoints written before they existed lack, with the value those checkpoints were written with
+_SETTINGS_BEFORE_THEY_EXISTED = {"batch": "top"}
 
 
 class WeightSchedule(ABC):
@@ -94,8 +100,9 @@ class WeightSchedule(ABC):
             kind = state.get("kind") if isinstance(state, dict) else state
             raise ValueError(f"the checkpoint holds a {kind!r} schedule, not {self.kind!r}")
         for key, mine in self._settings().items():
-            if not _same_numbers(state.get(key), mine):
-                raise ValueError(f"the checkpoint's schedule has {key}={state.get(key)}, not {mine}")
+            saved = state.get(key, _SETTINGS_BEFORE_THEY_EXISTED.get(key))
+            if not _same_setting(saved, mine):
+                raise ValueError(f"the checkpoint's schedule has {key}={saved}, not {mine}")
         try:
             ols = OLS.from_state_dict(state["ols"])
         except (KeyError, TypeError, ValueError) as error:
@@ -109,9 +116,23 @@ class WeightSchedule(ABC):
 
 
 class OLSSchedule(WeightSchedule):
-    """MA-SFOLS: corner weights by OLS priority, one per agent; random weights for the agents beyond the queue."""
+    """
+    MA-SFOLS: corner weights by OLS priority, one per agent; random weights for the agents beyond the queue.
+
+    :param batch: how a round's weights are taken from the queue: ``"top"``, the highest stored priorities
+        (Algorithm 1); ``"spread"``, each agent's weight of highest priority given that the weights handed out
+        before it in the round bring no improvement (:meth:`~sb3_sfgpi.ols.OLS.next_weight` with ``pending``), so
+        that two agents do not train for nearly the same corner weight
+    :param tolerance: see :class:`WeightSchedule`
+    """
 
     kind = "ols"
+
+    def __init__(self, batch: str = "top", tolerance: float = 1e-6):
+        if batch not in OLS_BATCHES:
+            raise ValueError(f"batch must be one of {OLS_BATCHES}, got {batch!r}")
+        super().__init__(tolerance)
+        self.batch = batch
 
     def next_weights(self, agents: Sequence[str], rng: np.random.Generator) -> AgentWeights | None:
         first = self.ols.next_weight()
@@ -119,9 +140,12 @@ class OLSSchedule(WeightSchedule):
             return None
         weights = {agents[0]: first}
         for agent in agents[1:]:
-            w = self.ols.next_weight()
+            w = self.ols.next_weight(list(weights.values()) if self.batch == "spread" else ())
             weights[agent] = random_weights(self.ols.reward_dim, rng=rng) if w is None else w
         return weights
+
+    def _settings(self) -> dict[str, Any]:
+        return {"batch": self.batch}
 
 
 class RandomSchedule(WeightSchedule):
@@ -159,23 +183,31 @@ class FixedSchedule(WeightSchedule):
         return {"weights": self.weights.tolist()}
 
 
-def _same_numbers(saved: Any, mine: Any) -> bool:
+def _same_setting(saved: Any, mine: Any) -> bool:
+    if isinstance(mine, str):
+        return saved == mine
     try:
         return np.shape(saved) == np.shape(mine) and bool(np.allclose(np.asarray(saved, dtype=np.float64), mine))
     except (TypeError, ValueError):
         return False
 
 
-def make_schedule(weights: str | np.ndarray | Sequence[float], tolerance: float = 1e-6) -> WeightSchedule:
+def make_schedule(
+    weights: str | np.ndarray | Sequence[float], ols_batch: str = "top", tolerance: float = 1e-6
+) -> WeightSchedule:
     """
     A schedule from its short description.
 
     :param weights: ``"ols"`` (MA-SFOLS), ``"random"`` (Random + GPI) or the weights of a :class:`FixedSchedule`
-    :raises ValueError: an unknown name
+    :param ols_batch: the ``batch`` of an :class:`OLSSchedule` (only for ``"ols"``)
+    :raises ValueError: an unknown name; ``ols_batch`` other than ``"top"`` for a schedule without OLS weights
     """
+    if isinstance(weights, str) and weights == "ols":
+        return OLSSchedule(ols_batch, tolerance)
+    if ols_batch != "top":
+        raise ValueError(f"ols_batch={ols_batch!r} is only for OLS weights (weights='ols'), not {weights!r}")
     if isinstance(weights, str):
-        kinds = {"ols": OLSSchedule, "random": RandomSchedule}
-        if weights not in kinds:
+        if weights != "random":
             raise ValueError(f"weights must be 'ols', 'random' or array-like weights, got {weights!r}")
-        return kinds[weights](tolerance)
+        return RandomSchedule(tolerance)
     return FixedSchedule(weights, tolerance)

@@ -61,6 +61,7 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
         (["--learner", "learning_rate=abc"], "learning_rate must be a number >= 0 or a schedule, got 'abc'"),
         (["--algo", "fixed", "--w", "1", "0", "0", "--validation-weights", "3"], "not for --algo fixed"),
         (["--validation-weights", "0", "--prune"], "--prune needs validation weights (--validation-weights N"),
+        (["--algo", "random", "--ols-batch", "spread"], "--ols-batch is only for --algo ma-sfols"),
     ],
 )
 def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, argv, message):
@@ -97,6 +98,7 @@ def test_numpy_scalars_are_accepted_as_options():
         (["--transfer"], "--transfer True would change the run's transfer (False)"),
         (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (12)"),
         (["--no-prune"], "--prune False would change the run's prune (True)"),
+        (["--ols-batch", "spread"], "--ols-batch spread would change the run's ols_batch (top)"),
     ],
 )
 def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):

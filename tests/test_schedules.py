@@ -109,6 +109,25 @@ def test_ols_with_exact_values_ends_with_the_ccs(angles, n_agents, seed):
     assert same_rows(schedule.ols.ccs, ccs)
 
 
+def test_spread_batch_hands_a_round_out_over_the_simplex():
+    """After the extrema (exact values of three policies), top-2 gives the two agents neighbouring corners (max-norm
+    distance 0.29); the spread batch gives the second agent the corner that still has most to gain once the first
+    agent's is taken (tests/test_ols.py shows the priorities)."""
+    policies = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])
+    rounds = {}
+    for batch in ("top", "spread"):
+        schedule = OLSSchedule(batch)
+        schedule.start(3)
+        rng = np.random.default_rng(0)
+        for w in [*schedule.next_weights(["a", "b"], rng).values(), *schedule.next_weights(["a"], rng).values()]:
+            schedule.add(policies[np.argmax(policies @ w)], w)  # the three extrema
+        rounds[batch] = schedule.next_weights(["a", "b"], rng)
+    np.testing.assert_allclose(rounds["top"]["a"], [5 / 12, 7 / 12, 0])
+    np.testing.assert_allclose(rounds["spread"]["a"], [5 / 12, 7 / 12, 0])
+    np.testing.assert_allclose(rounds["top"]["b"], [5 / 17, 7 / 17, 5 / 17])
+    np.testing.assert_allclose(rounds["spread"]["b"], [0, 2 / 7, 5 / 7])
+
+
 def test_ols_and_random_refuse_a_duplicate_value_into_the_set():
     for schedule in (OLSSchedule(), RandomSchedule()):
         schedule.start(2)
@@ -197,10 +216,11 @@ def test_fixed_schedule_validates_its_weights_at_start(weights, message):
 
 # --- state round trip -------------------------------------------------------------------------------------------
 def make(kind: str) -> WeightSchedule:
-    return {"ols": OLSSchedule(), "random": RandomSchedule(), "fixed": FixedSchedule([0.3, 0.7])}[kind]
+    schedules = {"ols": OLSSchedule, "ols-spread": lambda: OLSSchedule("spread"), "random": RandomSchedule}
+    return FixedSchedule([0.3, 0.7]) if kind == "fixed" else schedules[kind]()
 
 
-@pytest.mark.parametrize("kind", ["ols", "random", "fixed"])
+@pytest.mark.parametrize("kind", ["ols", "ols-spread", "random", "fixed"])
 def test_state_dict_through_json_restores_identical_behaviour(kind):
     values = arc_values([0.1, 0.5, 0.9, 1.3])
     original = make(kind)
@@ -210,7 +230,7 @@ def test_state_dict_through_json_restores_identical_behaviour(kind):
         for w in original.next_weights(["a", "b"], rng).values():
             original.add(values[np.argmax(values @ w)], w)
     state = json.loads(json.dumps(original.state_dict(), allow_nan=False))
-    assert state["kind"] == kind
+    assert state["kind"] == kind.partition("-")[0]
 
     restored = make(kind)
     restored.start(2)
@@ -256,6 +276,20 @@ def test_load_state_dict_refuses_a_fixed_schedule_with_other_weights():
     np.testing.assert_allclose(same.weights, [0.3, 0.7])
 
 
+def test_load_state_dict_refuses_another_batch_and_reads_old_checkpoints_as_top():
+    saved = OLSSchedule("spread")
+    saved.start(3)
+    top = OLSSchedule("top")
+    top.start(3)
+    with pytest.raises(ValueError, match="batch=spread, not top"):
+        top.load_state_dict(saved.state_dict())
+    old = top.state_dict()
+    del old["batch"]  # written before the setting existed: Algorithm 1's top priorities
+    top.load_state_dict(old)
+    with pytest.raises(ValueError, match="batch=top, not spread"):
+        saved.load_state_dict(old)
+
+
 @pytest.mark.parametrize("state", [None, [], "ols", {"ols": {}}])
 def test_load_state_dict_refuses_what_is_not_a_schedule_state(state):
     schedule = OLSSchedule()
@@ -272,6 +306,15 @@ def test_make_schedule_builds_each_kind():
     assert type(fixed) is FixedSchedule and fixed.tolerance == 1e-3
     np.testing.assert_array_equal(fixed.weights, [0.25, 0.75])
     assert make_schedule("ols", tolerance=1e-4).tolerance == 1e-4
+
+
+def test_ols_batch_is_only_for_ols_weights():
+    assert make_schedule("ols", ols_batch="spread").batch == "spread"
+    for weights in ("random", [0.5, 0.5]):
+        with pytest.raises(ValueError, match="ols_batch='spread' is only for OLS weights"):
+            make_schedule(weights, ols_batch="spread")
+    with pytest.raises(ValueError, match="batch must be one of"):
+        make_schedule("ols", ols_batch="widest")
 
 
 @pytest.mark.parametrize("name", ["nonsense", "OLS", "fixed", ""])

@@ -13,6 +13,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from sb3_sfgpi.cli.errors import UsageError
+from sb3_sfgpi.schedules import OLS_BATCHES
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
 #: What each entry of ``--w`` weighs in the shipped domains (``--help``).
@@ -40,6 +41,8 @@ class DomainPreset:
     :param eval_episodes: episodes per test weight of the GPI evaluation
     :param value_mode: ``"joint"`` or ``"shared"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
     :param gpi_set: ``"all"`` or ``"ccs"``
+    :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue, ``"top"`` or
+        ``"spread"`` (see :class:`~sb3_sfgpi.schedules.OLSSchedule`)
     :param validation_weights: Dirichlet(1) validation weights deciding which new policies join Π (0: all join; see
         :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
     :param prune: also retire, after every iteration, the policies without which GPI does better on the validation
@@ -65,6 +68,7 @@ class DomainPreset:
     eval_episodes: int
     value_mode: str = "joint"
     gpi_set: str = "all"
+    ols_batch: str = "top"
     validation_weights: int = 0
     prune: bool = False
     eval_workers: int = 0
@@ -128,6 +132,8 @@ class DomainPreset:
                 raise UsageError(f"domain {self.name!r}: {key} must be a positive integer, got {value!r}")
         if "policy" not in self.learner_kwargs:
             raise UsageError(f"domain {self.name!r}: learner_kwargs lacks 'policy'")
+        if self.ols_batch not in OLS_BATCHES:
+            raise UsageError(f"domain {self.name!r}: ols_batch must be one of {OLS_BATCHES}, got {self.ols_batch!r}")
         if not isinstance(self.prune, bool):
             raise UsageError(f"domain {self.name!r}: prune must be true or false, got {self.prune!r}")
 

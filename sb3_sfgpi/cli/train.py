@@ -16,6 +16,7 @@ from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_
 from sb3_sfgpi.cli.values import check_weights, key_values
 from sb3_sfgpi.masfols import MASFOLS, SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.schedules import OLS_BATCHES
 
 ALGORITHMS = {"ma-sfols": "ols", "random": "random"}  # --algo -> MASFOLS weights (fixed: the --w weights)
 
@@ -44,6 +45,13 @@ def add_parser(sub: Any) -> None:
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--out", type=Path, help="run directory (default: runs/<domain>-<algo>-s<seed>)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    train.add_argument(
+        "--ols-batch",
+        choices=list(OLS_BATCHES),
+        help="--algo ma-sfols: how an iteration takes its agents' weights from the OLS queue: top, the highest "
+        "priorities (the paper's Algorithm 1); spread, each next one as if the weights handed out before it in the "
+        "iteration brought no improvement (the agents do not train for nearly the same weight). Default: the domain's",
+    )
     train.add_argument(
         "--transfer", action="store_true", default=None, help="start new learners from the best policy in the set"
     )
@@ -181,6 +189,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "learner_kwargs": learner_kwargs,
         "n_test_weights": n_test_weights,
         "weights": ALGORITHMS.get(args.algo) or check_weights(args.w, "--w"),
+        "ols_batch": _ols_batch(args, preset),
         "validation_weights": (validation_weights := _validation_weights(args, preset)),
         "prune": _prune(args, preset, validation_weights),
         "sharing": args.sharing or SETTING_DEFAULTS["sharing"],
@@ -189,6 +198,15 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
     if args.algo == "fixed":
         config.update(_fixed_budget(args, iterations, steps_per_iteration))
     return config
+
+
+def _ols_batch(args: argparse.Namespace, preset: DomainPreset) -> str:
+    """How MA-SFOLS takes a round's weights from the queue: the option's or the domain's; "top" for other algos."""
+    if args.ols_batch is None:
+        return preset.ols_batch if args.algo == "ma-sfols" else "top"
+    if args.algo != "ma-sfols":
+        raise UsageError(f"--ols-batch is only for --algo ma-sfols (OLS weights), not --algo {args.algo}")
+    return args.ols_batch
 
 
 def _validation_weights(args: argparse.Namespace, preset: DomainPreset) -> int:
@@ -239,6 +257,7 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
         if getattr(args, option[2:]) and config[key] != saved.get(key):
             raise UsageError(f"--resume: {option} would change the run's {key} ({saved.get(key)})")
     for option in (
+        "--ols-batch",
         "--steps-per-iteration",
         "--n-test-weights",
         "--transfer",
@@ -278,6 +297,7 @@ def _model(
         env,
         policy=config["policy"],
         weights=config["weights"],
+        ols_batch=config["ols_batch"],
         steps_per_iteration=config["steps_per_iteration"],
         learner_kwargs=config["learner_kwargs"],
         test_weights=config["n_test_weights"] if isinstance(config["weights"], str) else None,  # fixed: at --w
