@@ -3,7 +3,7 @@
     python -m benchmarks                 # everything (about 26 minutes on 2 cores, 13 of them sweep-fig4)
     python -m benchmarks --quick         # shorter runs
     python -m benchmarks gpi ols         # some: gpi training ols traffic memory optimum sharing copies ray-eval
-                                         # sweep sweep-fig4
+                                         # sweep sweep-fig4, and sweep-fig4-preset (only when named)
     python -m benchmarks --output results.md
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
@@ -37,7 +37,10 @@ BENCHMARKS = {
     "copies": "benchmarks.bench_copies",
     "ray-eval": "benchmarks.bench_ray_eval",
     "sweep-fig4": "benchmarks.bench_sweep:run_fig4",
+    "sweep-fig4-preset": "benchmarks.bench_sweep:run_fig4_preset",
 }
+#: Run only when named (about 50 minutes on 2 cores), not in the default "everything".
+ON_REQUEST = ("sweep-fig4-preset",)
 
 
 def _cpu_model() -> str:
@@ -108,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, help="also write the markdown (header + table) to this file")
     args = parser.parse_args(argv)
     single_thread_torch()
-    names = args.names or list(BENCHMARKS)
+    names = args.names or [name for name in BENCHMARKS if name not in ON_REQUEST]
     rows: list[Row] = []
     failed = False
     start = time.perf_counter()
