@@ -106,7 +106,8 @@ def markdown(rows: list[Row]) -> str:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
-    parser.add_argument("names", nargs="*", choices=[*BENCHMARKS, []], help="benchmarks to run (default: all)")
+    default = f"all but {', '.join(ON_REQUEST)}"
+    parser.add_argument("names", nargs="*", choices=[*BENCHMARKS, []], help=f"benchmarks to run (default: {default})")
     parser.add_argument("--quick", action="store_true", help="shorter runs")
     parser.add_argument("--output", type=Path, help="also write the markdown (header + table) to this file")
     args = parser.parse_args(argv)
