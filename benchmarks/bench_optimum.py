@@ -65,8 +65,9 @@ def run(quick: bool = False) -> list[Row]:
     ccs, iterations = reference.exact_ccs(optimum)
     ols_time = time.perf_counter() - start
     test_weights = random_weights(3, 12, rng=0)  # the example's draw: default_rng(0).dirichlet(ones(3), size=12)
-    mean = np.mean([optimum.value(u) for u in test_weights])
-    rounds = {batch: _rounds_of_two(optimum, batch, test_weights) for batch in OLS_BATCHES}
+    optimal = np.array([optimum.value(u) for u in test_weights])
+    mean = optimal.mean()
+    rounds = {batch: _rounds_of_two(optimum, batch, test_weights, optimal) for batch in OLS_BATCHES}
     return [
         Row(
             "four-room optimum",
@@ -95,14 +96,14 @@ def run(quick: bool = False) -> list[Row]:
     ]
 
 
-def _rounds_of_two(optimum: FourRoomOptimum, batch: str, test_weights: np.ndarray) -> list[float]:
-    """After each round of two weights solved exactly: max over the values found of w·V, / w·V*, mean over w."""
+def _rounds_of_two(optimum: FourRoomOptimum, batch: str, test_weights: np.ndarray, optimal: np.ndarray) -> list[float]:
+    """After each round of two weights solved exactly: max over the values found of w·V, / w·V* (``optimal``), mean
+    over the test weights."""
     schedule = OLSSchedule(batch)
     schedule.start(3)
-    best = np.array([optimum.value(u) for u in test_weights])
     rng, fractions = np.random.default_rng(0), []
     for _ in range(ROUNDS):
         for w in schedule.next_weights(["agent_0", "agent_1"], rng).values():
             schedule.add(optimum.vector_value(w), w)
-        fractions.append(float(np.mean(np.max(test_weights @ np.array(schedule.ols.values).T, axis=1) / best)))
+        fractions.append(float(np.mean(np.max(test_weights @ np.array(schedule.ols.values).T, axis=1) / optimal)))
     return fractions

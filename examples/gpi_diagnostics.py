@@ -60,7 +60,7 @@ def union_per_weight(sets: dict[str, GPIPolicy], env, test_weights: np.ndarray, 
 def final_set(run_dir: RunDirectory) -> GPIPolicy:
     """Π as the run's last checkpoint has it (retired policies left out)."""
     state = run_dir.read_checkpoint()
-    return run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True).members()
+    return run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"])
 
 
 def joined(first: GPIPolicy, second: GPIPolicy) -> GPIPolicy:
