@@ -18,7 +18,7 @@ The training runs go through ``sb3_sfgpi.sweep`` (a local Ray, or the cluster at
 runs of all seeds, then the scalarised learners of all seeds (their budget is their seed's MA-SFOLS run). Runs that
 already exist are resumed (finished ones are skipped), so the script can be interrupted and re-run.
 
-Example (the defaults; about an hour on two cores)::
+Example (the defaults; about two hours on two cores)::
 
     python examples/traffic.py --out runs/traffic-paper --figures docs/figures
 """
