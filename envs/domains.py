@@ -64,11 +64,11 @@ def traffic() -> dict[str, Any]:
     Budget: up to ``iterations x steps_per_iteration`` joint steps (5 simulated seconds each) per agent, plus
     after every iteration one value episode per new policy and a GPI episode for each of the 25 test weights
     (in ``eval_workers`` processes), and the validation of the new policies: about 10-20 minutes on two cores.
-    Three iterations of 8,000 steps rather than six of 4,000 (the same maximum): OLS ends after three or four
-    iterations either way, and the policies for the simplex extrema, trained in the first iteration, are the ones
-    GPI follows at the extreme weights. Measured over 3 seeds (README "Traffic"): GPI's final mean w·return
-    -0.385 +/- 0.023 -> -0.347 +/- 0.024, vehicle waiting at [1, 0] 6.42 -> 5.56 s, pedestrian waiting at
-    [0, 1] 5.66 -> 5.11 s.
+    Three iterations of 8,000 steps rather than six of 4,000 (the same maximum): with 4,000 OLS ended after three or
+    four iterations, well short of the maximum, and the policies for the simplex extrema, trained in the first
+    iteration, are the ones GPI follows at the extreme weights (with 8,000 OLS ends after 2 iterations or runs all
+    3). Measured over 3 seeds (README "Traffic"): GPI's final mean w·return -0.385 +/- 0.023 -> -0.347 +/- 0.024,
+    vehicle waiting at [1, 0] 6.42 -> 5.56 s, pedestrian waiting at [0, 1] 5.66 -> 5.11 s.
 
     Rewards are scaled per objective, vehicles x 0.01 and pedestrians x 0.25. The per-step changes of waiting
     time are tens of seconds (networks train better on rewards of order one), and the factor 25 between the
