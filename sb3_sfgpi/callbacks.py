@@ -33,6 +33,9 @@ from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
 
+#: How the values of new policies can be estimated (see :class:`ValueEstimation`)
+VALUE_MODES = ("joint", "shared", "gpi")
+
 
 @dataclass(frozen=True)
 class EvaluationConfig:
@@ -82,7 +85,10 @@ class ValueEstimation:
     :param mode: ``"joint"``: the new learners act together and the discounted return of a learner's agents (its
         mean over them, when agents share a learner) is the value of its policy; ``"shared"``: each new policy is
         run by every agent at once and its value is the mean discounted return over the agents (comparable between
-        policies learned at different places of a heterogeneous env, e.g. different intersections)
+        policies learned at different places of a heterogeneous env, e.g. different intersections); ``"gpi"``:
+        the value of the GPI agent at the learner's weights (SFOLS, GPI-LS), every agent acting by GPI over Π and
+        the iteration's new policies, its mean discounted return over the agents (GPI over all of Π: not with
+        ``gpi_set="ccs"``, whose members are chosen by these values)
     :param episodes: episodes of the estimate (per policy in ``"shared"`` mode)
     """
 
@@ -90,8 +96,8 @@ class ValueEstimation:
     episodes: int = 1
 
     def __post_init__(self) -> None:
-        if self.mode not in ("joint", "shared"):
-            raise ValueError(f"mode must be 'joint' or 'shared', got {self.mode!r}")
+        if self.mode not in VALUE_MODES:
+            raise ValueError(f"mode must be one of {VALUE_MODES}, got {self.mode!r}")
         if self.episodes < 1:
             raise ValueError(f"episodes must be at least 1, got {self.episodes}")
 
@@ -183,6 +189,8 @@ class OLSCallback(BaseCallback):
         self.validation = validation
         if validation.n_weights and evaluation.policies == "own":
             raise ValueError("policy validation scores GPI over the shared Π: not for policies='own' evaluations")
+        if values.mode == "gpi" and evaluation.gpi_set == "ccs":
+            raise ValueError("value mode 'gpi' takes GPI over all of Π: not with gpi_set='ccs' (chosen by the values)")
         self.run_dir = run_dir if run_dir is None or isinstance(run_dir, RunDirectory) else RunDirectory(run_dir)
         self.resume = resume
         self.max_iterations = max_iterations
@@ -297,11 +305,14 @@ class OLSCallback(BaseCallback):
                 name: np.mean([returns.mean_discounted(agent) for agent in agents], axis=0)
                 for name, agents in runner.groups.items()
             }
-        values = {}
-        for name in runner.learner_names:
-            returns = runner.rollout(runner.learner_policy(name), episodes, seed)
-            values[name] = np.mean([returns.mean_discounted(a) for a in returns.discounted], axis=0)
-        return values
+        if self.values.mode == "gpi":  # GPI over Π and the new policies, at each learner's weights
+            candidates = self.policy_set.subset(range(len(self.policy_set)))
+            for name in runner.learner_names:
+                candidates.add(runner.learners[name], agent=name)
+            policies = {name: candidates.joint_policy(w) for name, w in self.weights.items()}
+        else:  # "shared": each new policy run by every agent
+            policies = {name: runner.learner_policy(name) for name in runner.learner_names}
+        return {name: _mean_over_agents(runner.rollout(policy, episodes, seed)) for name, policy in policies.items()}
 
     def _admit(self, name: str, value: np.ndarray) -> None:
         """Add learner ``name``'s new policy to Π, unless GPI does worse with it on the validation weights."""
@@ -456,3 +467,8 @@ class OLSCallback(BaseCallback):
         if self._policy_dir is not None and self._policy_dir is not self.run_dir:
             self._policy_dir.remove_temporary()
             self._policy_dir = None
+
+
+def _mean_over_agents(returns: EpisodeReturns) -> np.ndarray:
+    """The mean discounted return vector over the agents of ``returns``."""
+    return np.mean([returns.mean_discounted(agent) for agent in returns.discounted], axis=0)

@@ -42,9 +42,17 @@ def test_resume_continues_to_more_iterations(run_dir, tmp_path):
     args = [*TRAIN, "--algo", "random", "--out", str(out)]  # random weights never end before the cap
     assert main(args) == 0
     args[args.index("--iterations") + 1] = "3"
+    assert main([*args, "--resume", "--value-mode", "gpi"]) == 2  # would change the run
     assert main([*args, "--resume"]) == 0
     assert json.loads((out / "checkpoint.json").read_text())["iteration"] == 3
     assert len((out / "evaluation.csv").read_text().splitlines()) == 4
+
+
+def test_value_mode_is_the_domains_unless_given(run_dir, tmp_path):
+    assert json.loads((run_dir / "run.json").read_text())["value_mode"] == "joint"
+    out = tmp_path / "gpi"
+    assert main([*TRAIN, "--iterations", "1", "--value-mode", "gpi", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["value_mode"] == "gpi"
 
 
 def test_evaluate_prints_per_agent_returns(run_dir, capsys):

@@ -76,6 +76,26 @@ def test_ols_finds_the_optimum_and_stops_before_the_cap():
             assert np.dot(entry["weights"], returns["undiscounted"]) == pytest.approx(optimal_value(entry["weights"]))
 
 
+def test_gpi_values_are_gpis_return_over_the_set_and_the_new_policies_at_each_learners_weights():
+    model = make(steps=40, value_mode="gpi").learn(max_iterations=2)
+    record = model.callback.record
+    candidates = record.subset(i for i, info in enumerate(record.infos) if info.iteration == 1)
+    for name in model.runner.learner_names:
+        candidates.add(model.runner.learners[name], agent=name)
+    second = [info for info in record.infos if info.iteration == 2]
+    assert second  # the second iteration's learners (not optimal yet: GPI over the set does better than they do)
+    weights = model.history[1]["weights_trained"]
+    for info in second:
+        np.testing.assert_array_equal(info.value, chain_return(candidates, weights[info.agent]))
+    joint = make(steps=40).learn(max_iterations=2).callback.record
+    assert any(not np.array_equal(a.value, b.value) for a, b in zip(joint.infos[2:], second, strict=False))
+
+
+def test_gpi_values_are_refused_with_gpi_over_the_ccs():
+    with pytest.raises(ValueError, match="value mode 'gpi'.*gpi_set='ccs'"):
+        make(value_mode="gpi", gpi_set="ccs")
+
+
 def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     model = make(steps=50, weights="random", seed=4, run_dir=tmp_path, run_info={"domain": "chain"})
     model.learn(max_iterations=2)

@@ -39,7 +39,7 @@ class DomainPreset:
     :param n_test_weights: default number of Dirichlet(1) test weights of the GPI evaluation
     :param value_episodes: episodes of each value estimate
     :param eval_episodes: episodes per test weight of the GPI evaluation
-    :param value_mode: ``"joint"`` or ``"shared"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
+    :param value_mode: ``"joint"``, ``"shared"`` or ``"gpi"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
     :param gpi_set: ``"all"`` or ``"ccs"``
     :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue, ``"top"`` or
         ``"spread"`` (see :class:`~sb3_sfgpi.schedules.OLSSchedule`)

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_sfgpi.callbacks import VALUE_MODES
 from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
 from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_domain
 from sb3_sfgpi.cli.values import check_weights, key_values
@@ -51,6 +52,13 @@ def add_parser(sub: Any) -> None:
         help="--algo ma-sfols: how an iteration takes its agents' weights from the OLS queue: top, the highest "
         "priorities (the paper's Algorithm 1); spread, each next one as if the weights handed out before it in the "
         "iteration brought no improvement (the agents do not train for nearly the same weight). Default: the domain's",
+    )
+    train.add_argument(
+        "--value-mode",
+        choices=list(VALUE_MODES),
+        help="how a new policy's value for OLS is measured: joint, the new learners acting together; shared, each "
+        "new policy run by every agent; gpi, the agents acting by GPI over the set and the new policies at the "
+        "learner's weights (SFOLS, GPI-LS). Default: the domain's",
     )
     train.add_argument(
         "--transfer", action="store_true", default=None, help="start new learners from the best policy in the set"
@@ -190,6 +198,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "n_test_weights": n_test_weights,
         "weights": ALGORITHMS.get(args.algo) or check_weights(args.w, "--w"),
         "ols_batch": _ols_batch(args, preset),
+        "value_mode": args.value_mode or preset.value_mode,
         "validation_weights": (validation_weights := _validation_weights(args, preset)),
         "prune": _prune(args, preset, validation_weights),
         "sharing": args.sharing or SETTING_DEFAULTS["sharing"],
@@ -258,6 +267,7 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
             raise UsageError(f"--resume: {option} would change the run's {key} ({saved.get(key)})")
     for option in (
         "--ols-batch",
+        "--value-mode",
         "--steps-per-iteration",
         "--n-test-weights",
         "--transfer",
@@ -303,7 +313,7 @@ def _model(
         test_weights=config["n_test_weights"] if isinstance(config["weights"], str) else None,  # fixed: at --w
         seed=config["seed"],
         run_dir=run_dir.path,
-        value_mode=preset.value_mode,
+        value_mode=config["value_mode"],
         value_episodes=preset.value_episodes,
         eval_episodes=preset.eval_episodes,
         gpi_set=preset.gpi_set,
