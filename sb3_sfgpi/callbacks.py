@@ -89,7 +89,7 @@ class ValueEstimation:
         the value of the GPI agent at the learner's weights (SFOLS, GPI-LS), every agent acting by GPI over Π and
         the iteration's new policies, its mean discounted return over the agents (GPI over all of Π: not with
         ``gpi_set="ccs"``, whose members are chosen by these values)
-    :param episodes: episodes of the estimate (per policy in ``"shared"`` mode)
+    :param episodes: episodes of the estimate (per policy in ``"shared"`` mode, per learner in ``"gpi"`` mode)
     """
 
     mode: str = "joint"
