@@ -301,10 +301,7 @@ class OLSCallback(BaseCallback):
         seed = derive_seed(runner.seed, "value", self.iteration)  # the same episodes for every policy
         if self.values.mode == "joint":  # the learners act together; a policy's value is its agents' mean return
             returns = runner.rollout(runner.learner_policy(), episodes, seed)
-            return {
-                name: np.mean([returns.mean_discounted(agent) for agent in agents], axis=0)
-                for name, agents in runner.groups.items()
-            }
+            return {name: returns.mean_discounted_over(agents) for name, agents in runner.groups.items()}
         if self.values.mode == "gpi":  # GPI over Π and the new policies, at each learner's weights
             candidates = self.policy_set.subset(range(len(self.policy_set)))
             for name in runner.learner_names:
@@ -312,7 +309,9 @@ class OLSCallback(BaseCallback):
             policies = {name: candidates.joint_policy(w) for name, w in self.weights.items()}
         else:  # "shared": each new policy run by every agent
             policies = {name: runner.learner_policy(name) for name in runner.learner_names}
-        return {name: _mean_over_agents(runner.rollout(policy, episodes, seed)) for name, policy in policies.items()}
+        return {
+            name: runner.rollout(policy, episodes, seed).mean_discounted_over() for name, policy in policies.items()
+        }
 
     def _admit(self, name: str, value: np.ndarray) -> None:
         """Add learner ``name``'s new policy to Π, unless GPI does worse with it on the validation weights."""
@@ -467,8 +466,3 @@ class OLSCallback(BaseCallback):
         if self._policy_dir is not None and self._policy_dir is not self.run_dir:
             self._policy_dir.remove_temporary()
             self._policy_dir = None
-
-
-def _mean_over_agents(returns: EpisodeReturns) -> np.ndarray:
-    """The mean discounted return vector over the agents of ``returns``."""
-    return np.mean([returns.mean_discounted(agent) for agent in returns.discounted], axis=0)

@@ -170,7 +170,7 @@ def _run(
 def summarize_row(result: EpisodeReturns, weights: Any, compare: dict[str, Any]) -> dict[str, Any]:
     """One row of a comparison file from a method's episodes."""
     agents = list(result.discounted)
-    disc = np.mean([result.mean_discounted(a) for a in agents], axis=0)
+    disc = result.mean_discounted_over(agents)
     return {
         "weights": None if weights is None else list(weights),
         "return_discounted": disc.tolist(),

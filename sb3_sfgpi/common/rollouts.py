@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numbers
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,6 +34,12 @@ class EpisodeReturns:
     def mean_discounted(self, agent: str) -> np.ndarray:
         """Mean discounted vector return of ``agent``: the Monte-Carlo estimate of ``V^π``."""
         return self.discounted[agent].mean(axis=0)
+
+    def mean_discounted_over(self, agents: Iterable[str] | None = None) -> np.ndarray:
+        """Mean over ``agents`` (default: all of them) of their mean discounted vector returns."""
+        return np.mean(
+            [self.mean_discounted(agent) for agent in (self.discounted if agents is None else agents)], axis=0
+        )
 
     def mean_undiscounted(self, agent: str) -> np.ndarray:
         """Mean undiscounted vector return of ``agent``."""
