@@ -155,6 +155,8 @@ class OLSCallback(BaseCallback):
     :param resume: continue from the checkpoint in ``run_dir`` if there is one
     :param max_iterations: stop after this many iterations (None: only when the schedule ends)
     :param transfer: start each new learner from the policy of Π that is best for its weights
+    :param gpi_behaviour: each new learner acts ε-greedily by GPI over Π (as GPI acts at execution) and itself
+        (SFOLS's behaviour), instead of by itself alone; what it learns stays its own policy's SFs
     :param progress_bar: show progress bars for the iteration and the evaluation
     :param verbose: 1 prints a line per iteration
     """
@@ -172,6 +174,7 @@ class OLSCallback(BaseCallback):
         resume: bool = False,
         max_iterations: int | None = None,
         transfer: bool = False,
+        gpi_behaviour: bool = False,
         progress_bar: bool = False,
         verbose: int = 0,
     ):
@@ -189,12 +192,15 @@ class OLSCallback(BaseCallback):
         self.validation = validation
         if validation.n_weights and evaluation.policies == "own":
             raise ValueError("policy validation scores GPI over the shared Π: not for policies='own' evaluations")
+        if gpi_behaviour and evaluation.policies == "own":
+            raise ValueError("GPI behaviour acts over the shared Π: not for policies='own' evaluations")
         if values.mode == "gpi" and evaluation.gpi_set == "ccs":
             raise ValueError("value mode 'gpi' takes GPI over all of Π: not with gpi_set='ccs' (chosen by the values)")
         self.run_dir = run_dir if run_dir is None or isinstance(run_dir, RunDirectory) else RunDirectory(run_dir)
         self.resume = resume
         self.max_iterations = max_iterations
         self.transfer = transfer
+        self.gpi_behaviour = gpi_behaviour
         self.progress_bar = progress_bar
         self.policy_set = GPIPolicy()  # Π: what GPI acts over
         self.record = GPIPolicy()  # every policy admitted to Π, those retired since included (what is saved)
@@ -286,6 +292,10 @@ class OLSCallback(BaseCallback):
         if self.transfer and len(self.policy_set):
             init = {name: self._best_network(w) for name, w in weights.items()}
         self.model.start_iteration(weights, self.iteration, self.steps_per_iteration, init_networks=init)
+        if self.gpi_behaviour and len(self.policy_set):
+            behaviour_set = self._gpi_policies()
+            for learner in self.model.learners.values():
+                learner.behaviour_set = behaviour_set
         if self.progress_bar:
             self._iteration_bar = tqdm(
                 total=self.steps_per_iteration, desc=f"iteration {self.iteration + 1}", unit="step", leave=False
@@ -399,13 +409,18 @@ class OLSCallback(BaseCallback):
                 for w, seed in zip(self._test_weights, seeds, strict=True)
             ]
             return self._evaluator.run(jobs)
-        policy_set = self.policy_set.ccs_policies() if ccs_only else self.policy_set
+        policy_set = self._gpi_policies()
         agents = runner.agents if own else None
         bar = tqdm(self._test_weights, desc="evaluating GPI", unit="w", leave=False, disable=not self.progress_bar)
         return [
             runner.rollout(policy_set.joint_policy(w, agents), config.episodes, seed)
             for w, seed in zip(bar, seeds, strict=True)
         ]
+
+    def _gpi_policies(self) -> GPIPolicy:
+        """The policies GPI acts over: Π, or its CCS (``gpi_set="ccs"``, not with ``policies="own"``)."""
+        ccs_only = self.evaluation.gpi_set == "ccs" and self.evaluation.policies != "own"
+        return self.policy_set.ccs_policies() if ccs_only else self.policy_set
 
     def _log(self, summary: dict[str, Any]) -> None:
         for key, value in summary_scalars(summary).items():

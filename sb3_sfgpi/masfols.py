@@ -38,13 +38,21 @@ SETTINGS = (
     "eval_episodes",
     "gpi_set",
     "transfer",
+    "gpi_behaviour",
     "validation_weights",
     "prune",
     "sharing",
     "n_envs",
 )
 #: Settings that runs written before they existed lack, with the value that reproduces those runs.
-SETTING_DEFAULTS = {"validation_weights": 0, "prune": False, "sharing": "independent", "n_envs": 1, "ols_batch": "top"}
+SETTING_DEFAULTS = {
+    "validation_weights": 0,
+    "prune": False,
+    "sharing": "independent",
+    "n_envs": 1,
+    "ols_batch": "top",
+    "gpi_behaviour": False,
+}
 
 
 class MASFOLS:
@@ -59,8 +67,8 @@ class MASFOLS:
         its own policies, at these weights unless ``test_weights`` says otherwise)
     :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue: ``"top"``, the
         highest priorities (Algorithm 1); ``"spread"``, each agent's weight ranked as if the weights handed out
-        before it in the iteration brought no improvement (see :class:`~sb3_sfgpi.schedules.OLSSchedule`; only
-        with ``weights="ols"``)
+        before it in the iteration brought no improvement; ``"same"``, the highest one for every agent (see
+        :class:`~sb3_sfgpi.schedules.OLSSchedule`; only with ``weights="ols"``)
     :param steps_per_iteration: joint env steps every agent trains for its weights in one iteration
     :param learner_kwargs: further SFDQN arguments of the learners (learning rate, γ, exploration, ...)
     :param test_weights: the weights GPI is evaluated on after every iteration: an array ``(n, d)``, or a number
@@ -72,6 +80,8 @@ class MASFOLS:
     :param eval_episodes: episodes per test weight of the GPI evaluation
     :param gpi_set: GPI over ``"all"`` of Π or over its CCS (``"ccs"``)
     :param transfer: start each new learner from the policy of Π best for its weights
+    :param gpi_behaviour: each new learner acts ε-greedily by GPI over Π and itself (SFOLS's behaviour; see
+        :class:`~sb3_sfgpi.callbacks.OLSCallback`)
     :param validation_weights: a new policy joins Π only if GPI does at least as well with it on the simplex
         extrema and this many Dirichlet(1) validation weights (see :class:`~sb3_sfgpi.callbacks.PolicyValidation`;
         0: every new policy joins, as in the paper; not for fixed weights)
@@ -112,6 +122,7 @@ class MASFOLS:
         eval_episodes: int = 1,
         gpi_set: str = "all",
         transfer: bool = False,
+        gpi_behaviour: bool = False,
         validation_weights: int = 0,
         prune: bool = False,
         sharing: str = "independent",
@@ -153,6 +164,7 @@ class MASFOLS:
             "eval_episodes": eval_episodes,
             "gpi_set": gpi_set,
             "transfer": transfer,
+            "gpi_behaviour": gpi_behaviour,
             "validation_weights": validation_weights,
             "prune": prune,
             "sharing": sharing,
@@ -171,6 +183,7 @@ class MASFOLS:
             PolicyValidation(validation_weights, prune=prune),
             run_dir=self.run_dir,
             transfer=transfer,
+            gpi_behaviour=gpi_behaviour,
             verbose=verbose,
         )
         self.run_info = {**dict(run_info or {}), **self.settings}

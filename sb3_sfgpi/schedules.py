@@ -6,8 +6,8 @@ for all of them. They differ in the weights they hand out:
 
 * :class:`OLSSchedule` (MA-SFOLS): the corner weights of highest optimistic priority, simplex extrema first, one
   per agent (``batch="top"``, Algorithm 1), or each agent's chosen given the weights handed out before it in the
-  round (``batch="spread"``); Dirichlet(1) random weights for the agents beyond the queue; None (stop) when the
-  queue is empty.
+  round (``batch="spread"``); Dirichlet(1) random weights for the agents beyond the queue; or the one corner weight
+  of highest priority for every agent (``batch="same"``); None (stop) when the queue is empty.
 * :class:`RandomSchedule` (Random + GPI): Dirichlet(1) random weights for every agent, never stops by itself.
 * :class:`FixedSchedule` (a priori scalarised learners): the same weights for every agent in every iteration;
   every policy joins Π.
@@ -30,7 +30,7 @@ from sb3_sfgpi.ols import OLS
 #: agent -> the weights it trains for in the next iteration
 AgentWeights = dict[str, np.ndarray]
 #: the ways :class:`OLSSchedule` takes a round's weights from the queue
-OLS_BATCHES = ("top", "spread")
+OLS_BATCHES = ("top", "spread", "same")
 #: settings that checkpoints written before they existed lack, with the value those checkpoints were written with
 _SETTINGS_BEFORE_THEY_EXISTED = {"batch": "top"}
 
@@ -122,7 +122,9 @@ class OLSSchedule(WeightSchedule):
     :param batch: how a round's weights are taken from the queue: ``"top"``, the highest stored priorities
         (Algorithm 1); ``"spread"``, each agent's weight of highest priority given that the weights handed out
         before it in the round bring no improvement (:meth:`~sb3_sfgpi.ols.OLS.next_weight` with ``pending``), so
-        that two agents do not train for nearly the same corner weight
+        that two agents do not train for nearly the same corner weight; ``"same"``, every agent the weight of highest
+        priority, so that a round's policies are learned beside partners acting for their weight, as all agents act
+        for one weight at execution
     :param tolerance: see :class:`WeightSchedule`
     """
 
@@ -138,6 +140,8 @@ class OLSSchedule(WeightSchedule):
         first = self.ols.next_weight()
         if first is None:
             return None
+        if self.batch == "same":
+            return {agent: first.copy() for agent in agents}
         weights = {agents[0]: first}
         for agent in agents[1:]:
             w = self.ols.next_weight(list(weights.values()) if self.batch == "spread" else ())

@@ -13,7 +13,7 @@ from sfgpi_envs.domains import four_room
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import DomainPreset
-from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.common.weights import random_weights, same_weight
 
 TRAIN = ["train", "four-room", "--iterations", "2", "--steps-per-iteration", "150", "--no-progress", "--seed", "1"]
 
@@ -53,6 +53,22 @@ def test_value_mode_is_the_domains_unless_given(run_dir, tmp_path):
     out = tmp_path / "gpi"
     assert main([*TRAIN, "--iterations", "1", "--value-mode", "gpi", "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["value_mode"] == "gpi"
+
+
+def test_refused_settings_leave_no_run_directory(tmp_path, capsys):
+    out = tmp_path / "nested" / "refused"
+    assert main([*TRAIN, "--learner", "bogus=1", "--out", str(out)]) == 2
+    assert "bad learner options" in capsys.readouterr().err and not out.exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    assert main([*TRAIN, "--learner", "bogus=1", "--out", str(kept)]) == 2
+    assert kept.is_dir()  # the user's own directory stays
+
+
+def test_weights_match_within_their_rounding():
+    # compare, plot and the examples match a run's weights to the ones asked for (run files round them)
+    assert same_weight([0.4, 0.6], np.array([0.4004, 0.5996]))
+    assert not same_weight([0.4, 0.6], [0.402, 0.598])
 
 
 def test_evaluate_prints_per_agent_returns(run_dir, capsys):

@@ -96,6 +96,22 @@ def test_gpi_values_are_refused_with_gpi_over_the_ccs():
         make(value_mode="gpi", gpi_set="ccs")
 
 
+def test_gpi_behaviour_gives_the_learners_the_set_gpi_acts_over():
+    model = make(steps=40, gpi_behaviour=True).learn(max_iterations=1)
+    assert all(learner.behaviour_set is None for learner in model.runner.learners.values())  # Π was empty
+    model.learn(max_iterations=2)
+    assert all(learner.behaviour_set is model.callback.policy_set for learner in model.runner.learners.values())
+    alone = make(steps=40).learn(max_iterations=2)
+    assert model.history[0]["mean_return"] == alone.history[0]["mean_return"]
+    assert model.history[1]["weights_trained"] == alone.history[1]["weights_trained"]
+    learners = model.runner.learners.values(), alone.runner.learners.values()
+    assert any(
+        not np.array_equal(a.successor_features(OBS), b.successor_features(OBS)) for a, b in zip(*learners, strict=True)
+    )  # the same weights, another behaviour: other data, other tables
+    with pytest.raises(ValueError, match="GPI behaviour acts over the shared Π"):
+        make(weights=[0.5, 0.5], gpi_behaviour=True)
+
+
 def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     model = make(steps=50, weights="random", seed=4, run_dir=tmp_path, run_info={"domain": "chain"})
     model.learn(max_iterations=2)
@@ -115,11 +131,17 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("weights", "validation_weights", "sharing"),
-    [("ols", 0, "independent"), ("random", 0, "independent"), ("random", 3, "independent"), ("random", 0, "shared")],
+    "options",
+    [
+        {"weights": "ols"},
+        {"weights": "random"},
+        {"weights": "random", "validation_weights": 3},
+        {"weights": "random", "sharing": "shared"},
+        {"weights": "ols", "gpi_behaviour": True},
+    ],
 )
-def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, weights, validation_weights, sharing):
-    kwargs = dict(steps=300, weights=weights, seed=3, validation_weights=validation_weights, sharing=sharing)
+def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):
+    kwargs = dict(steps=300, seed=3, **options)
     whole = make(**kwargs, run_dir=tmp_path / "whole").learn(max_iterations=3)
 
     make(**kwargs, run_dir=tmp_path / "cut").learn(max_iterations=1)

@@ -128,6 +128,26 @@ def test_spread_batch_hands_a_round_out_over_the_simplex():
     np.testing.assert_allclose(rounds["spread"]["b"], [0, 2 / 7, 5 / 7])
 
 
+def test_same_batch_gives_every_agent_the_top_corner_weight_once():
+    schedule = OLSSchedule("same")
+    schedule.start(3)
+    rng = np.random.default_rng(0)
+    extrema = [schedule.next_weights(["a", "b"], rng) for _ in range(3)]
+    for round_ in extrema:  # one extremum per round, for both agents, each its own copy
+        assert round_["a"] is not round_["b"]
+        np.testing.assert_array_equal(round_["a"], round_["b"])
+    np.testing.assert_array_equal(sorted(r["a"].tolist() for r in extrema), np.eye(3)[::-1])
+    policies = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])  # as in the spread test above
+    for round_ in extrema:
+        for w in round_.values():
+            schedule.add(policies[np.argmax(policies @ w)], w)
+    fourth = schedule.next_weights(["a", "b"], rng)
+    np.testing.assert_allclose(fourth["a"], [5 / 12, 7 / 12, 0])  # top's first corner, for both
+    np.testing.assert_allclose(fourth["b"], [5 / 12, 7 / 12, 0])
+    second = schedule.next_weights(["a", "b"], rng)
+    np.testing.assert_allclose(second["a"], [5 / 17, 7 / 17, 5 / 17])  # then top's second: none is skipped
+
+
 def test_ols_and_random_refuse_a_duplicate_value_into_the_set():
     for schedule in (OLSSchedule(), RandomSchedule()):
         schedule.start(2)
@@ -216,11 +236,16 @@ def test_fixed_schedule_validates_its_weights_at_start(weights, message):
 
 # --- state round trip -------------------------------------------------------------------------------------------
 def make(kind: str) -> WeightSchedule:
-    schedules = {"ols": OLSSchedule, "ols-spread": lambda: OLSSchedule("spread"), "random": RandomSchedule}
+    schedules = {
+        "ols": OLSSchedule,
+        "ols-spread": lambda: OLSSchedule("spread"),
+        "ols-same": lambda: OLSSchedule("same"),
+        "random": RandomSchedule,
+    }
     return FixedSchedule([0.3, 0.7]) if kind == "fixed" else schedules[kind]()
 
 
-@pytest.mark.parametrize("kind", ["ols", "ols-spread", "random", "fixed"])
+@pytest.mark.parametrize("kind", ["ols", "ols-spread", "ols-same", "random", "fixed"])
 def test_state_dict_through_json_restores_identical_behaviour(kind):
     values = arc_values([0.1, 0.5, 0.9, 1.3])
     original = make(kind)

@@ -261,6 +261,8 @@ def test_delay_rewards_are_the_waiting_spent_during_the_step(make_env, listen):
         ("always_keep", {}),
         ("random", {"delta_time": 3, "yellow_time": 4, "min_green": 7, "max_green": 20}),
         ("always_change", {"delta_time": 4, "yellow_time": 2, "min_green": 5, "max_green": 9}),
+        ("random", {"early_change": "defer"}),
+        ("always_change", {"early_change": "defer"}),
     ],
 )
 def test_min_max_green_and_yellow(make_env, listen, policy, kwargs):
@@ -290,6 +292,8 @@ def test_min_max_green_and_yellow(make_env, listen, policy, kwargs):
         )
         if policy == "always_keep":
             assert set(greens) == {max_g}
+        elif policy == "always_change" and env.early_change == "defer":
+            assert set(greens) == {min_g}  # asked too early, made at min_green, off the 5 s grid
         elif policy == "always_change":
             assert all(min_g <= g < min_g + env.delta_time for g in greens), greens
 
@@ -330,6 +334,25 @@ def test_signal_controller_unit():
     assert ctl.tick(32) is None
     assert ctl.tick(33) == "Y"  # forced after max green
     assert ctl.tick(36) == "G"
+
+
+def test_signal_controller_defers_early_changes():
+    prog = SignalProgram(("G", "r"), ("y", "Y"))
+    ctl = SignalController(prog, min_green=10, max_green=20, yellow_time=3, defer_early=True)
+    ctl.reset(0)
+    assert ctl.act(1, 2) is None and ctl.deferred == 1  # too early: remembered
+    assert ctl.tick(9) is None
+    assert ctl.tick(10) == "y" and ctl.green == 1 and ctl.deferred is None  # made at min green
+    assert ctl.tick(13) == "r" and ctl.elapsed_green(13) == 0
+    assert ctl.act(1, 15) is None and ctl.act(0, 20) is None  # asked early, then kept: the later decision wins
+    assert ctl.deferred is None and ctl.tick(23) is None and not ctl.in_yellow
+    assert ctl.act(1, 21) is None and ctl.reset(22) == "G" and ctl.deferred is None  # reset forgets it
+    assert ctl.act(1, 32) == "y"  # at min green or later: at once, as without deferral
+
+
+def test_early_change_is_validated(make_env):
+    with pytest.raises(ValueError, match="early_change must be one of"):
+        make_env(early_change="queue")
 
 
 # --------------------------------------------------------------------------------------------------

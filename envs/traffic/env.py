@@ -56,6 +56,9 @@ SIGNAL_CONTROLS = ("agent", "fixed-time", "actuated")
 ACTION_MODES = ("change", "phase")
 """What an action says: keep (0) / change to the next green (1), or the index of the green to show."""
 
+EARLY_CHANGES = ("ignore", "defer")
+"""What a change asked for before the minimum green does: nothing, or it is made when the minimum green is reached."""
+
 EPISODE_METRIC_KEYS = (
     "vehicle_waiting_time_total",
     "vehicle_waiting_time_mean",
@@ -93,9 +96,11 @@ class TrafficSignalEnv(ParallelEnv):
 
     Actions (``action_mode="change"``, the paper's): ``Discrete(2)``, 0 keep, 1 change to the next green
     of the cycle; (``"phase"``, sumo-rl's): ``Discrete(G)``, the green to show. A change before
-    ``min_green`` seconds of green is ignored; a green is ended after ``max_green`` seconds whatever the
-    action (the next green of the cycle follows); a change shows a yellow state for ``yellow_time``
-    seconds (the program's, or links green now and red next turn yellow), during which actions are ignored.
+    ``min_green`` seconds of green is ignored (``early_change="ignore"``, sumo-rl's rule) or made when the green
+    reaches ``min_green`` seconds unless a later decision keeps it (``"defer"``); a green is ended after
+    ``max_green`` seconds whatever the action (the next green of the cycle follows); a change shows a yellow state
+    for ``yellow_time`` seconds (the program's, or links green now and red next turn yellow), during which actions
+    are ignored.
 
     Rewards: ``float32`` arrays of shape ``(d,)``, one component per objective of ``objectives``
     (default: vehicles, pedestrians, in seconds), times ``reward_scale`` (per objective).
@@ -119,6 +124,9 @@ class TrafficSignalEnv(ParallelEnv):
     :param yellow_time: duration of the yellow phase between two greens [s].
     :param min_green: minimum green time [s].
     :param max_green: maximum green time [s] (also the normaliser of ``tau``).
+    :param early_change: what a change asked for before ``min_green`` seconds of green does: ``"ignore"``
+        (nothing) or ``"defer"`` (it is made at ``min_green``, so that a green can last exactly ``min_green`` on a
+        decision grid that does not fall on it).
     :param objectives: names from :data:`~.objectives.MENU`, one reward component each, in order
         (``"pedestrian_waiting"`` needs a network with signalised crossings).
     :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green).
@@ -161,6 +169,7 @@ class TrafficSignalEnv(ParallelEnv):
         yellow_time: int = 3,
         min_green: int = 10,
         max_green: int = 50,
+        early_change: str = "ignore",
         objectives: Sequence[str] = DEFAULT_OBJECTIVES,
         action_mode: str = "change",
         signal_control: str = "agent",
@@ -188,6 +197,9 @@ class TrafficSignalEnv(ParallelEnv):
         self.max_green = _check_int("max_green", max_green, 1)
         if self.min_green > self.max_green:
             raise ValueError(f"min_green ({min_green}) must not exceed max_green ({max_green})")
+        if early_change not in EARLY_CHANGES:
+            raise ValueError(f"early_change must be one of {EARLY_CHANGES}, got {early_change!r}")
+        self.early_change = early_change
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         self.objectives = select_objectives(objectives)
@@ -249,7 +261,9 @@ class TrafficSignalEnv(ParallelEnv):
         self._api: Any = None
         self._monitors: list[IntersectionMonitor] = []
         self._controllers = [
-            SignalController(self._programs[a], self.min_green, self.max_green, self.yellow_time)
+            SignalController(
+                self._programs[a], self.min_green, self.max_green, self.yellow_time, early_change == "defer"
+            )
             for a in self.possible_agents
         ]
         self._lookups = [self._programs[a].lookup() for a in self.possible_agents]

@@ -100,7 +100,8 @@ class SignalController:
     """Controller of one light: minimum/maximum green and a fixed yellow time.
 
     * a change (:meth:`act` with :data:`CHANGE`, or :meth:`request` of another green) before
-      ``min_green`` seconds of green is ignored (the green is kept);
+      ``min_green`` seconds of green is ignored (the green is kept), or, with ``defer_early``, made by
+      :meth:`tick` when the green reaches ``min_green`` seconds, unless a later decision asks otherwise;
     * a green that reaches ``max_green`` seconds is ended by :meth:`tick` whatever the agent wants
       (the next green of the cycle follows);
     * between two greens the yellow state is shown for exactly ``yellow_time`` seconds;
@@ -110,15 +111,32 @@ class SignalController:
     :param min_green: minimum green time [s].
     :param max_green: maximum green time [s].
     :param yellow_time: yellow time [s] (at least 1).
+    :param defer_early: make a change asked for too early when the minimum green is reached, instead of ignoring it.
     """
 
-    __slots__ = ("program", "min_green", "max_green", "yellow_time", "green", "in_yellow", "green_start", "yellow_end")
+    __slots__ = (
+        "program",
+        "min_green",
+        "max_green",
+        "yellow_time",
+        "defer_early",
+        "green",
+        "in_yellow",
+        "green_start",
+        "yellow_end",
+        "deferred",
+    )
 
-    def __init__(self, program: SignalProgram, min_green: int, max_green: int, yellow_time: int) -> None:
+    def __init__(
+        self, program: SignalProgram, min_green: int, max_green: int, yellow_time: int, defer_early: bool = False
+    ) -> None:
         self.program = program
         self.min_green = min_green
         self.max_green = max_green
         self.yellow_time = yellow_time
+        self.defer_early = defer_early
+        self.deferred: int | None = None
+        """The green asked for before the minimum green, made when it is reached (``defer_early`` only)."""
         self.green = 0
         """Index of the green phase shown, or (during yellow) the one coming next."""
         self.in_yellow = False
@@ -135,6 +153,7 @@ class SignalController:
         """
         self.green = green
         self.in_yellow = False
+        self.deferred = None
         self.green_start = time
         return self.program.greens[green]
 
@@ -162,14 +181,19 @@ class SignalController:
         :param time: current simulation time [s].
         :return: the new state string if the light changes now, else ``None``.
         """
-        if green != self.green and not self.in_yellow and time - self.green_start >= self.min_green:
+        if self.in_yellow:
+            return None
+        early = time - self.green_start < self.min_green
+        self.deferred = green if early and self.defer_early and green != self.green else None
+        if green != self.green and not early:
             return self._start_yellow(time, green)
         return None
 
     def tick(self, time: int) -> str | None:
         """Advance the phase logic to ``time`` (called before each simulated second).
 
-        Ends a finished yellow and forces the change of a green that reached ``max_green``.
+        Ends a finished yellow, makes a deferred change once the green reached ``min_green`` and forces the change
+        of a green that reached ``max_green``.
 
         :param time: current simulation time [s].
         :return: the new state string if the light changes now, else ``None``.
@@ -180,6 +204,8 @@ class SignalController:
                 self.green_start = time
                 return self.program.greens[self.green]
             return None
+        if self.deferred is not None and time - self.green_start >= self.min_green:
+            return self._start_yellow(time, self.deferred)
         if time - self.green_start >= self.max_green:
             return self._start_yellow(time, self._next())
         return None
@@ -190,6 +216,7 @@ class SignalController:
     def _start_yellow(self, time: int, target: int) -> str:
         state = self.program.transition(self.green, target)
         self.green = target
+        self.deferred = None
         self.in_yellow = True
         self.yellow_end = time + self.yellow_time
         self.green_start = self.yellow_end

@@ -25,7 +25,7 @@ from sb3_sfgpi.cli.presets import CLI_SETTINGS, DomainPreset, load_domain
 from sb3_sfgpi.cli.values import check_weights
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.serialization import atomic_write_json
-from sb3_sfgpi.common.weights import format_weights
+from sb3_sfgpi.common.weights import format_weights, same_weight
 from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, run_job
 from sb3_sfgpi.run_directory import RunDirectory
 
@@ -120,7 +120,7 @@ def _planned(
     fixed_runs = _fixed_runs(args, config)
     weights = [check_weights(w, "--w") for w in (args.w or preset.compare_weights)]
     for _, fixed in fixed_runs:
-        if not any(np.allclose(fixed["weights"], w) for w in weights):
+        if not any(same_weight(fixed["weights"], w) for w in weights):
             weights.append(list(fixed["weights"]))
     if not weights:
         raise UsageError("no weights to evaluate GPI at: pass --w")

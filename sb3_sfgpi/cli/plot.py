@@ -13,6 +13,7 @@ from sb3_sfgpi import plots
 from sb3_sfgpi.cli.compare import COMPARE_FORMAT, merge_comparisons
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.common.serialization import read_json
+from sb3_sfgpi.common.weights import same_weight
 from sb3_sfgpi.run_directory import SUMMARY_FIELDS, RunDirectory
 
 PLOT_KINDS = ("returns", "steps", "versus", "tradeoff")
@@ -143,11 +144,6 @@ def own_weight_return(run_dir: RunDirectory) -> tuple[np.ndarray, float]:
     if not at_w:
         raise UsageError(f"--fixed: {run_dir} was not evaluated at its own weight {w.tolist()}")
     return w, float(w @ at_w[0])
-
-
-def same_weight(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two weight vectors are the same weight: within 1e-3 of each other, max-norm (run files round them)."""
-    return bool(np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-3)
 
 
 def final_test_returns(run_dir: RunDirectory) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import signal
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +51,8 @@ def add_parser(sub: Any) -> None:
         choices=list(OLS_BATCHES),
         help="--algo ma-sfols: how an iteration takes its agents' weights from the OLS queue: top, the highest "
         "priorities (the paper's Algorithm 1); spread, each next one as if the weights handed out before it in the "
-        "iteration brought no improvement (the agents do not train for nearly the same weight). Default: the domain's",
+        "iteration brought no improvement (the agents do not train for nearly the same weight); same, the highest "
+        "one for every agent (they learn beside partners acting for their weight). Default: the domain's",
     )
     train.add_argument(
         "--value-mode",
@@ -62,6 +63,12 @@ def add_parser(sub: Any) -> None:
     )
     train.add_argument(
         "--transfer", action="store_true", default=None, help="start new learners from the best policy in the set"
+    )
+    train.add_argument(
+        "--gpi-behaviour",
+        action="store_true",
+        default=None,
+        help="new learners act epsilon-greedily by GPI over the set and themselves (SFOLS's behaviour), not alone",
     )
     train.add_argument(
         "--sharing",
@@ -137,7 +144,14 @@ def run(args: argparse.Namespace) -> int:
     import torch as th
 
     th.set_num_threads(args.torch_threads)
-    model = _model(args, preset, preset.build_env(config["env_kwargs"]), _created(run_dir), config)
+    new_directory = not run_dir.path.exists()
+    try:
+        model = _model(args, preset, preset.build_env(config["env_kwargs"]), _created(run_dir), config)
+    except ValueError:  # refused settings: leave no empty run directory behind
+        if new_directory:
+            with suppress(OSError):
+                run_dir.path.rmdir()
+        raise
     try:
         with _sigterm_as_interrupt():
             model.learn(config["iterations"], progress_bar=not args.no_progress)
@@ -192,6 +206,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "iterations": iterations,
         "steps_per_iteration": steps_per_iteration,
         "transfer": bool(args.transfer),
+        "gpi_behaviour": bool(args.gpi_behaviour),
         "env_kwargs": {**preset.env_kwargs, **key_values(args.env, "--env")},
         "policy": learner_kwargs.pop("policy"),
         "learner_kwargs": learner_kwargs,
@@ -271,6 +286,7 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
         "--steps-per-iteration",
         "--n-test-weights",
         "--transfer",
+        "--gpi-behaviour",
         "--validation-weights",
         "--prune",
         "--sharing",
@@ -318,6 +334,7 @@ def _model(
         eval_episodes=preset.eval_episodes,
         gpi_set=preset.gpi_set,
         transfer=config["transfer"],
+        gpi_behaviour=config["gpi_behaviour"],
         validation_weights=config["validation_weights"],
         prune=config["prune"],
         sharing=config["sharing"],

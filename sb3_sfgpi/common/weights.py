@@ -64,6 +64,11 @@ def random_weights(reward_dim: int, n: int | None = None, rng: np.random.Generat
     return generator.dirichlet(np.ones(reward_dim), size=n)
 
 
+def same_weight(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float]) -> bool:
+    """Whether two weight vectors are the same weight: within 1e-3 of each other, max-norm (run files round them)."""
+    return bool(np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-3)
+
+
 def format_weights(w: Sequence[float]) -> str:
     """``[0.2,0.8]``: weights rounded to 3 decimals, the one way output, labels and legends write them."""
     return "[" + ",".join(f"{x:g}" for x in np.round(w, 3)) + "]"

@@ -119,14 +119,28 @@ class SFDQNPolicy(BasePolicy):
             taking the first (the learned policy)
         :return: the actions (shape ``(batch,)``) and whether the observation was a batch
         """
+        if random_ties:
+            q_values, vectorized = self.q_values(observation, weights)
+            return argmax_random_ties(q_values), vectorized
         self.set_training_mode(False)
         obs_tensor, vectorized = self.obs_to_tensor(observation)
         with th.no_grad():
             weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
-            psi = self.sf_net(obs_tensor)
-            if random_ties:
-                return argmax_random_ties(scalarize(psi, weights_tensor).cpu().numpy()), vectorized
-            return greedy_actions(psi, weights_tensor).cpu().numpy(), vectorized
+            return greedy_actions(self.sf_net(obs_tensor), weights_tensor).cpu().numpy(), vectorized
+
+    def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+        """
+        ``w · ψ(s, a)`` of every action, for one observation or a batch.
+
+        :param observation: raw observation(s), as given to ``predict``
+        :param weights: shape ``(d,)``
+        :return: the values (shape ``(batch, n_actions)``) and whether the observation was a batch
+        """
+        self.set_training_mode(False)
+        obs_tensor, vectorized = self.obs_to_tensor(observation)
+        with th.no_grad():
+            weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
+            return scalarize(self.sf_net(obs_tensor), weights_tensor).cpu().numpy(), vectorized
 
     def td_update(
         self,
@@ -287,13 +301,19 @@ class TabularPolicy(SFDQNPolicy):
         """``argmax_a w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.greedy`)."""
         if not self._on_cpu():
             return super().greedy(observation, weights, random_ties)
+        q_values, vectorized = self.q_values(observation, weights)
+        return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
+
+    def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+        """``w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.q_values`)."""
+        if not self._on_cpu():
+            return super().q_values(observation, weights)
         # SB3's is_vectorized_observation, without its image-transpose step (integer spaces are never images).
         vectorized = is_vectorized_observation(observation, self.observation_space)
         net = self.sf_net
         obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
         psi = net.table.weight.detach().numpy()[net.rows(obs)].reshape(-1, net.n_actions, self.reward_dim)
-        q_values = psi @ np.asarray(weights, dtype=np.float32)
-        return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
+        return psi @ np.asarray(weights, dtype=np.float32), vectorized
 
     def fill(self, value: float) -> None:
         """
