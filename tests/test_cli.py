@@ -127,3 +127,22 @@ def test_a_preset_with_a_prune_that_is_not_a_bool_is_refused():
     assert DomainPreset.from_dict("four-room", four_room()).validation_weights > 0
     with pytest.raises(UsageError, match="prune must be true or false, got 'yes'"):
         DomainPreset.from_dict("four-room", {**four_room(), "prune": "yes"})
+
+
+def test_compare_takes_fixed_runs_of_the_same_env_and_refuses_others(run_dir, tmp_path, capsys):
+    preset = DomainPreset.from_dict("four-room", four_room())
+    assert preset.same_env({"observation_mode": "own"}, {"observation_mode": "own", "max_steps": 200})  # default
+    assert preset.same_env({"goal_reward": [1.0, 1.0, 1.0]}, {})  # the default tuple, as run.json writes it
+    assert not preset.same_env({"observation_mode": "own"}, {"observation_mode": "full"})
+    fixed = tmp_path / "fixed"
+    fixed_train = [*TRAIN, "--algo", "fixed", "--w", "0.2", "0.3", "0.5", "--iterations", "1"]
+    assert main([*fixed_train, "--env", "max_steps=200", "--out", str(fixed)]) == 0
+    compare = ["compare", str(run_dir), "--fixed", str(fixed), "--episodes", "1", "--workers", "0"]
+    assert main([*compare, "-o", str(tmp_path / "compare.json")]) == 0
+    rows = json.loads((tmp_path / "compare.json").read_text())["rows"]
+    assert any(row["label"].startswith("scalarized") for row in rows)
+    other = tmp_path / "other"
+    assert main([*fixed_train, "--env", "max_steps=100", "--out", str(other)]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(run_dir), "--fixed", str(other), "--episodes", "1", "--workers", "0"]) == 2
+    assert "was trained on another env configuration" in capsys.readouterr().err

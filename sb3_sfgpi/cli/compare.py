@@ -100,14 +100,16 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fixed_runs(args: argparse.Namespace, config: dict[str, Any]) -> list[tuple[RunDirectory, dict[str, Any]]]:
+def _fixed_runs(
+    args: argparse.Namespace, config: dict[str, Any], preset: DomainPreset
+) -> list[tuple[RunDirectory, dict[str, Any]]]:
     runs = []
     for path in args.fixed:
         fixed = RunDirectory(path)
         fixed_config = fixed.read_config(required=CLI_SETTINGS)
         if fixed_config.get("algorithm") != "fixed" or fixed_config.get("domain") != config["domain"]:
             raise UsageError(f"--fixed {path} is not a fixed-weight run of {config['domain']}")
-        if fixed_config.get("env_kwargs") != config["env_kwargs"]:
+        if not preset.same_env(fixed_config["env_kwargs"], config["env_kwargs"]):
             raise UsageError(f"--fixed {path} was trained on another env configuration than {args.run_dir}")
         runs.append((fixed, fixed_config))
     return runs
@@ -117,7 +119,7 @@ def _planned(
     args: argparse.Namespace, run_dir: RunDirectory, config: dict[str, Any], preset: DomainPreset, gpi_set: str
 ) -> list[Planned]:
     """Every method as a job on the same episode seeds: GPI at each weight, the fixed learners, the baselines."""
-    fixed_runs = _fixed_runs(args, config)
+    fixed_runs = _fixed_runs(args, config, preset)
     weights = [check_weights(w, "--w") for w in (args.w or preset.compare_weights)]
     for _, fixed in fixed_runs:
         if not any(same_weight(fixed["weights"], w) for w in weights):

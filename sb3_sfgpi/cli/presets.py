@@ -7,6 +7,8 @@ one-line error naming the key and the domain.
 
 from __future__ import annotations
 
+import inspect
+import json
 from collections.abc import Callable
 from dataclasses import MISSING, Field, dataclass, field, fields
 from importlib.metadata import EntryPoint, entry_points
@@ -109,6 +111,22 @@ class DomainPreset:
             return self.make_env(**env_kwargs)
         except (TypeError, ValueError, FileNotFoundError) as error:
             raise UsageError(f"the {self.name} env refuses {env_kwargs}: {error}") from error
+
+    def same_env(self, env_kwargs: dict[str, Any], other: dict[str, Any]) -> bool:
+        """
+        Whether two runs' env arguments build the same env: equal once each is completed with the defaults of
+        ``make_env``'s arguments it leaves out (an argument given at its default is the same as one left out) and
+        written as JSON (tuples as lists, paths as strings).
+        """
+        return self._env_settings(env_kwargs) == self._env_settings(other)
+
+    def _env_settings(self, env_kwargs: dict[str, Any]) -> Any:
+        try:
+            parameters = inspect.signature(self.make_env).parameters.values()
+        except (TypeError, ValueError):  # a callable without a signature: its arguments as given
+            parameters = []
+        defaults = {p.name: p.default for p in parameters if p.default is not p.empty and p.kind is not p.VAR_KEYWORD}
+        return json.loads(json.dumps({**defaults, **env_kwargs}, default=str, sort_keys=True))
 
     def objective_names(self, env_kwargs: dict[str, Any]) -> list[str] | None:
         """
