@@ -67,7 +67,8 @@ class MASFOLS:
         its own policies, at these weights unless ``test_weights`` says otherwise)
     :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue: ``"top"``, the
         highest priorities (Algorithm 1); ``"spread"``, each agent's weight ranked as if the weights handed out
-        before it in the iteration brought no improvement; ``"same"``, the highest one for every agent (see
+        before it in the iteration brought no improvement; ``"same"``, the highest one for every agent;
+        ``"same-after-extrema"``, ``"top"`` while simplex extrema are queued, ``"same"`` after (see
         :class:`~sb3_sfgpi.schedules.OLSSchedule`; only with ``weights="ols"``)
     :param steps_per_iteration: joint env steps every agent trains for its weights in one iteration
     :param learner_kwargs: further SFDQN arguments of the learners (learning rate, γ, exploration, ...)

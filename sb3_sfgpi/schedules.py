@@ -7,7 +7,8 @@ for all of them. They differ in the weights they hand out:
 * :class:`OLSSchedule` (MA-SFOLS): the corner weights of highest optimistic priority, simplex extrema first, one
   per agent (``batch="top"``, Algorithm 1), or each agent's chosen given the weights handed out before it in the
   round (``batch="spread"``); Dirichlet(1) random weights for the agents beyond the queue; or the one corner weight
-  of highest priority for every agent (``batch="same"``); None (stop) when the queue is empty.
+  of highest priority for every agent (``batch="same"``), or so once the simplex extrema are handed out
+  (``batch="same-after-extrema"``); None (stop) when the queue is empty.
 * :class:`RandomSchedule` (Random + GPI): Dirichlet(1) random weights for every agent, never stops by itself.
 * :class:`FixedSchedule` (a priori scalarised learners): the same weights for every agent in every iteration;
   every policy joins Π.
@@ -18,6 +19,7 @@ the checkpoint was written by the same kind of schedule with the same settings.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from typing import Any
@@ -30,7 +32,7 @@ from sb3_sfgpi.ols import OLS
 #: agent -> the weights it trains for in the next iteration
 AgentWeights = dict[str, np.ndarray]
 #: the ways :class:`OLSSchedule` takes a round's weights from the queue
-OLS_BATCHES = ("top", "spread", "same")
+OLS_BATCHES = ("top", "spread", "same", "same-after-extrema")
 #: settings that checkpoints written before they existed lack, with the value those checkpoints were written with
 _SETTINGS_BEFORE_THEY_EXISTED = {"batch": "top"}
 
@@ -124,7 +126,8 @@ class OLSSchedule(WeightSchedule):
         before it in the round bring no improvement (:meth:`~sb3_sfgpi.ols.OLS.next_weight` with ``pending``), so
         that two agents do not train for nearly the same corner weight; ``"same"``, every agent the weight of highest
         priority, so that a round's policies are learned beside partners acting for their weight, as all agents act
-        for one weight at execution
+        for one weight at execution; ``"same-after-extrema"``, ``"top"`` while a simplex extremum heads the queue
+        (the first rounds cover the simplex as Algorithm 1's do), ``"same"`` after
     :param tolerance: see :class:`WeightSchedule`
     """
 
@@ -137,12 +140,13 @@ class OLSSchedule(WeightSchedule):
         self.batch = batch
 
     def next_weights(self, agents: Sequence[str], rng: np.random.Generator) -> AgentWeights | None:
-        first = self.ols.next_weight()
-        if first is None:
+        queue = self.ols.queue
+        if not queue:
             return None
-        if self.batch == "same":
+        if self.batch == "same" or (self.batch == "same-after-extrema" and not math.isinf(queue[0][0])):
+            first = self.ols.next_weight()
             return {agent: first.copy() for agent in agents}
-        weights = {agents[0]: first}
+        weights = {agents[0]: self.ols.next_weight()}
         for agent in agents[1:]:
             w = self.ols.next_weight(list(weights.values()) if self.batch == "spread" else ())
             weights[agent] = random_weights(self.ols.reward_dim, rng=rng) if w is None else w

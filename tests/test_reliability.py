@@ -99,7 +99,7 @@ def test_numpy_scalars_are_accepted_as_options():
         (["--gpi-behaviour"], "--gpi-behaviour True would change the run's gpi_behaviour (False)"),
         (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (12)"),
         (["--no-prune"], "--prune False would change the run's prune (True)"),
-        (["--ols-batch", "spread"], "--ols-batch spread would change the run's ols_batch (top)"),
+        (["--ols-batch", "top"], "--ols-batch top would change the run's ols_batch (same-after-extrema)"),
     ],
 )
 def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):

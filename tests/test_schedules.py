@@ -234,18 +234,42 @@ def test_fixed_schedule_validates_its_weights_at_start(weights, message):
     assert "fixed weights" in str(error.value)
 
 
+def test_same_after_extrema_hands_the_extrema_out_as_top_then_the_top_corner_weight_to_every_agent():
+    policies = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])  # as in the spread test above
+    rounds = {}
+    for batch in ("top", "same-after-extrema"):
+        schedule = OLSSchedule(batch)
+        schedule.start(3)
+        rng, rounds[batch] = np.random.default_rng(0), []
+        for _ in range(3):
+            weights = schedule.next_weights(["a", "b"], rng)
+            rounds[batch].append(weights)
+            for w in weights.values():
+                schedule.add(policies[np.argmax(policies @ w)], w)
+    top, mixed = rounds["top"], rounds["same-after-extrema"]
+    for agent in ("a", "b"):  # the same first round (e1, e2) and the same second (e3 and top's first corner)
+        for i in (0, 1):
+            np.testing.assert_array_equal(mixed[i][agent], top[i][agent])
+    np.testing.assert_array_equal(mixed[1]["a"], [0, 0, 1])
+    np.testing.assert_allclose(mixed[1]["b"], [5 / 12, 7 / 12, 0])
+    np.testing.assert_allclose(mixed[2]["a"], [5 / 17, 7 / 17, 5 / 17])  # no extremum left: one weight for both
+    np.testing.assert_allclose(mixed[2]["b"], [5 / 17, 7 / 17, 5 / 17])
+    assert not np.allclose(top[2]["a"], top[2]["b"])
+
+
 # --- state round trip -------------------------------------------------------------------------------------------
 def make(kind: str) -> WeightSchedule:
     schedules = {
         "ols": OLSSchedule,
         "ols-spread": lambda: OLSSchedule("spread"),
         "ols-same": lambda: OLSSchedule("same"),
+        "ols-same-after-extrema": lambda: OLSSchedule("same-after-extrema"),
         "random": RandomSchedule,
     }
     return FixedSchedule([0.3, 0.7]) if kind == "fixed" else schedules[kind]()
 
 
-@pytest.mark.parametrize("kind", ["ols", "ols-spread", "ols-same", "random", "fixed"])
+@pytest.mark.parametrize("kind", ["ols", "ols-spread", "ols-same", "ols-same-after-extrema", "random", "fixed"])
 def test_state_dict_through_json_restores_identical_behaviour(kind):
     values = arc_values([0.1, 0.5, 0.9, 1.3])
     original = make(kind)

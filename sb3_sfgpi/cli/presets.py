@@ -44,7 +44,7 @@ class DomainPreset:
     :param value_mode: ``"joint"``, ``"shared"`` or ``"gpi"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
     :param gpi_set: ``"all"`` or ``"ccs"``
     :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue, ``"top"``,
-        ``"spread"`` or ``"same"`` (see :class:`~sb3_sfgpi.schedules.OLSSchedule`)
+        ``"spread"``, ``"same"`` or ``"same-after-extrema"`` (see :class:`~sb3_sfgpi.schedules.OLSSchedule`)
     :param validation_weights: Dirichlet(1) validation weights deciding which new policies join Π (0: all join; see
         :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
     :param prune: also retire, after every iteration, the policies without which GPI does better on the validation

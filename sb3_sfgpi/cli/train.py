@@ -52,7 +52,8 @@ def add_parser(sub: Any) -> None:
         help="--algo ma-sfols: how an iteration takes its agents' weights from the OLS queue: top, the highest "
         "priorities (the paper's Algorithm 1); spread, each next one as if the weights handed out before it in the "
         "iteration brought no improvement (the agents do not train for nearly the same weight); same, the highest "
-        "one for every agent (they learn beside partners acting for their weight). Default: the domain's",
+        "one for every agent (they learn beside partners acting for their weight); same-after-extrema, top while "
+        "simplex extrema are queued, same after. Default: the domain's",
     )
     train.add_argument(
         "--value-mode",
