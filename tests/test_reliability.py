@@ -97,7 +97,7 @@ def test_numpy_scalars_are_accepted_as_options():
         (["--n-test-weights", "5"], "--n-test-weights 5 would change the run's n_test_weights (2)"),
         (["--transfer"], "--transfer True would change the run's transfer (False)"),
         (["--gpi-behaviour"], "--gpi-behaviour True would change the run's gpi_behaviour (False)"),
-        (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (12)"),
+        (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (100)"),
         (["--no-prune"], "--prune False would change the run's prune (True)"),
         (["--ols-batch", "top"], "--ols-batch top would change the run's ols_batch (same-after-extrema)"),
     ],
