@@ -16,12 +16,13 @@ from sb3_sfgpi.cli.presets import DomainPreset
 from sb3_sfgpi.common.weights import random_weights, same_weight
 
 TRAIN = ["train", "four-room", "--iterations", "2", "--steps-per-iteration", "150", "--no-progress", "--seed", "1"]
+FEW_VALIDATION = ["--validation-weights", "4"]  # validating untrained policies on the preset's 100 costs minutes
 
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs") / "fr"
-    assert main([*TRAIN, "--out", str(out)]) == 0
+    assert main([*TRAIN, *FEW_VALIDATION, "--out", str(out)]) == 0
     return out
 
 
@@ -39,7 +40,7 @@ def test_train_writes_a_run_directory(run_dir):
 def test_resume_continues_to_more_iterations(run_dir, tmp_path):
     assert main([*TRAIN, "--out", str(run_dir)]) == 2  # exists: refused without --resume
     out = tmp_path / "random"
-    args = [*TRAIN, "--algo", "random", "--out", str(out)]  # random weights never end before the cap
+    args = [*TRAIN, *FEW_VALIDATION, "--algo", "random", "--out", str(out)]  # random weights never end before the cap
     assert main(args) == 0
     args[args.index("--iterations") + 1] = "3"
     assert main([*args, "--resume", "--value-mode", "gpi"]) == 2  # would change the run

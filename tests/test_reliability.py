@@ -97,7 +97,7 @@ def test_numpy_scalars_are_accepted_as_options():
         (["--n-test-weights", "5"], "--n-test-weights 5 would change the run's n_test_weights (2)"),
         (["--transfer"], "--transfer True would change the run's transfer (False)"),
         (["--gpi-behaviour"], "--gpi-behaviour True would change the run's gpi_behaviour (False)"),
-        (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (100)"),
+        (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (4)"),
         (["--no-prune"], "--prune False would change the run's prune (True)"),
         (["--ols-batch", "top"], "--ols-batch top would change the run's ols_batch (same-after-extrema)"),
     ],
@@ -105,6 +105,7 @@ def test_numpy_scalars_are_accepted_as_options():
 def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):
     out = str(tmp_path / "run")
     train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "150", "--n-test-weights", "2"]
+    train += ["--validation-weights", "4"]  # few: validating untrained policies on the preset's 100 costs minutes
     assert main([*train, "--no-progress", "--out", out]) == 0
     resume = ["train", "four-room", "--iterations", "2", "--no-progress", "--out", out, "--resume"]
     assert main([*resume, *argv]) == 2
@@ -132,6 +133,7 @@ def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
 def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_path):
     def train(out, timeout=None):
         argv = ["train", "four-room", "--iterations", "3", "--steps-per-iteration", "300", "--n-test-weights", "2"]
+        argv += ["--validation-weights", "4"]
         argv += ["--out", str(out), "--no-progress", *(["--resume"] if (out / "run.json").exists() else [])]
         process = subprocess.Popen([sys.executable, "-m", "sb3_sfgpi.cli", *argv], stdout=subprocess.DEVNULL)
         try:
