@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import FEW_VALIDATION
 from sfgpi_envs.domains import four_room
 
 from sb3_sfgpi.cli import main
@@ -16,7 +17,6 @@ from sb3_sfgpi.cli.presets import DomainPreset
 from sb3_sfgpi.common.weights import random_weights, same_weight
 
 TRAIN = ["train", "four-room", "--iterations", "2", "--steps-per-iteration", "150", "--no-progress", "--seed", "1"]
-FEW_VALIDATION = ["--validation-weights", "4"]  # validating untrained policies on the preset's 100 costs minutes
 
 
 @pytest.fixture(scope="module")

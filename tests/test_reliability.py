@@ -12,7 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch as th
-from conftest import FIG1_TABULAR_KWARGS
+from conftest import FEW_VALIDATION, FIG1_TABULAR_KWARGS
 from momdp import Fig1MOMDP
 from tensorboard_scalars import scalar_steps
 
@@ -105,8 +105,7 @@ def test_numpy_scalars_are_accepted_as_options():
 def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):
     out = str(tmp_path / "run")
     train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "150", "--n-test-weights", "2"]
-    train += ["--validation-weights", "4"]  # few: validating untrained policies on the preset's 100 costs minutes
-    assert main([*train, "--no-progress", "--out", out]) == 0
+    assert main([*train, *FEW_VALIDATION, "--no-progress", "--out", out]) == 0
     resume = ["train", "four-room", "--iterations", "2", "--no-progress", "--out", out, "--resume"]
     assert main([*resume, *argv]) == 2
     assert message in capsys.readouterr().err
@@ -133,7 +132,7 @@ def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
 def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_path):
     def train(out, timeout=None):
         argv = ["train", "four-room", "--iterations", "3", "--steps-per-iteration", "300", "--n-test-weights", "2"]
-        argv += ["--validation-weights", "4"]
+        argv += FEW_VALIDATION
         argv += ["--out", str(out), "--no-progress", *(["--resume"] if (out / "run.json").exists() else [])]
         process = subprocess.Popen([sys.executable, "-m", "sb3_sfgpi.cli", *argv], stdout=subprocess.DEVNULL)
         try:
