@@ -84,7 +84,7 @@ class TrafficSignalEnv(ParallelEnv):
 
     Observation of an agent (float32, all entries in [0, 1]), Eq. 22::
 
-        [rho_0 .. rho_{G-1}, tau, density_1 .. density_L, queue_1 .. queue_L]
+        [rho_0 .. rho_{G-1}, tau, density_1 .. density_L, queue_1 .. queue_L(, approach_1 .. approach_V)]
 
     * ``rho``: one-hot of the green phase shown (during yellow: the green that comes next), over the
       ``G`` green phases of the light's static program; in the default network phase 0 = N-S vehicles
@@ -92,7 +92,10 @@ class TrafficSignalEnv(ParallelEnv):
     * ``tau``: elapsed green time / ``max_green`` (0 during yellow);
     * for each incoming lane ``l`` -- the controlled vehicle lanes, then the incoming sidewalk and the
       waiting area in front of the crossing -- number of vehicles/persons (density) and of queued ones
-      (vehicles below 0.1 m/s, persons standing) divided by the lane's capacity, clipped to 1.
+      (vehicles below 0.1 m/s, persons standing) divided by the lane's capacity, clipped to 1;
+    * with ``approach_zone > 0`` (not in Eq. 22), for each of the ``V`` vehicle lanes the moving vehicles
+      (0.1 m/s or faster) in its last ``approach_zone`` metres before the stop line, divided by the capacity of that
+      stretch, clipped to 1: what the detectors of an actuated program see.
 
     Actions (``action_mode="change"``, the paper's): ``Discrete(2)``, 0 keep, 1 change to the next green
     of the cycle; (``"phase"``, sumo-rl's): ``Discrete(G)``, the green to show. A change before
@@ -127,6 +130,8 @@ class TrafficSignalEnv(ParallelEnv):
     :param early_change: what a change asked for before ``min_green`` seconds of green does: ``"ignore"``
         (nothing) or ``"defer"`` (it is made at ``min_green``, so that a green can last exactly ``min_green`` on a
         decision grid that does not fall on it).
+    :param approach_zone: length [m] of the stretch before each vehicle lane's stop line whose moving vehicles are
+        observed (one more feature per vehicle lane, see above); 0 (default): Eq. 22's observation.
     :param objectives: names from :data:`~.objectives.MENU`, one reward component each, in order
         (``"pedestrian_waiting"`` needs a network with signalised crossings).
     :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green).
@@ -170,6 +175,7 @@ class TrafficSignalEnv(ParallelEnv):
         min_green: int = 10,
         max_green: int = 50,
         early_change: str = "ignore",
+        approach_zone: float = 0.0,
         objectives: Sequence[str] = DEFAULT_OBJECTIVES,
         action_mode: str = "change",
         signal_control: str = "agent",
@@ -200,6 +206,13 @@ class TrafficSignalEnv(ParallelEnv):
         if early_change not in EARLY_CHANGES:
             raise ValueError(f"early_change must be one of {EARLY_CHANGES}, got {early_change!r}")
         self.early_change = early_change
+        if (
+            isinstance(approach_zone, bool)
+            or not isinstance(approach_zone, (int, float, np.number))
+            or not 0.0 <= approach_zone < np.inf
+        ):
+            raise ValueError(f"approach_zone must be a number of metres >= 0, got {approach_zone!r}")
+        self.approach_zone = float(approach_zone)
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         self.objectives = select_objectives(objectives)
@@ -240,9 +253,12 @@ class TrafficSignalEnv(ParallelEnv):
         self.possible_agents: list[str] = list(self.layouts)
         self.agents: list[str] = []
         n_greens = {a: len(self._programs[a].greens) for a in self.possible_agents}
-        self.observation_spaces = {
-            a: spaces.Box(0.0, 1.0, shape=(n_greens[a] + 1 + 2 * lay.n_lanes,), dtype=np.float32)
+        n_features = {
+            a: n_greens[a] + 1 + 2 * lay.n_lanes + (len(lay.vehicle_lanes) if self.approach_zone else 0)
             for a, lay in self.layouts.items()
+        }
+        self.observation_spaces = {
+            a: spaces.Box(0.0, 1.0, shape=(n_features[a],), dtype=np.float32) for a in self.possible_agents
         }
         self.action_spaces = {
             a: spaces.Discrete(2 if action_mode == "change" else n_greens[a]) for a in self.possible_agents
@@ -403,7 +419,10 @@ class TrafficSignalEnv(ParallelEnv):
         self._counters = (sim.getDepartedNumber, sim.getArrivedNumber, sim.getDepartedPersonNumber,
                           sim.getArrivedPersonNumber)
         emissions = "co2" in self.objective_names
-        self._monitors = [IntersectionMonitor(api, self.layouts[a], emissions=emissions) for a in self.possible_agents]
+        self._monitors = [
+            IntersectionMonitor(api, self.layouts[a], emissions=emissions, approach_zone=self.approach_zone)
+            for a in self.possible_agents
+        ]
 
     def _active_program(self, tls: str) -> SignalProgram:
         tl = self._api.trafficlight
@@ -521,7 +540,7 @@ class TrafficSignalEnv(ParallelEnv):
         dens, queue = self._monitors[i].lane_features()
         vec = [0.0] * len(self._programs[self.possible_agents[i]].greens) + [tau]
         vec[green] = 1.0
-        return np.array(vec + dens + queue, dtype=np.float32)
+        return np.array(vec + dens + queue + self._monitors[i].approaching(), dtype=np.float32)
 
     def _info(self, i: int) -> dict[str, Any]:
         last = self._last[i]

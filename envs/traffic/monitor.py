@@ -19,6 +19,10 @@ Pedestrians (Eq. 25)
 When a vehicle or person leaves the approach its waiting time moves to a "done" total, so
 ``done + W`` is the total waiting time spent at this intersection during the episode.
 
+Approaching vehicles
+    With ``approach_zone > 0``, the moving vehicles (0.1 m/s or faster) in the last ``approach_zone`` metres of
+    every incoming vehicle lane before its stop line: what the detectors of an actuated program see.
+
 Queue and emissions
     The halting vehicles (below 0.1 m/s) on the incoming lanes at the decision; with ``emissions=True``
     the CO2 emitted on the incoming lanes (SUMO's ``lane.getCO2Emission``, mg per simulated second),
@@ -29,7 +33,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-from .topology import IntersectionLayout
+from .topology import IntersectionLayout, vehicle_lane_capacity
 
 
 class Measurement(NamedTuple):
@@ -60,9 +64,18 @@ class IntersectionMonitor:
     :param layout: incoming lanes and capacities of the intersection.
     :param step_length: simulated seconds per :meth:`track` call.
     :param emissions: also sum the CO2 emitted on the incoming lanes (one more SUMO call per lane and second).
+    :param approach_zone: length [m] of the stretch before each vehicle lane's stop line watched by
+        :meth:`approaching` (0: not watched).
     """
 
-    def __init__(self, api: Any, layout: IntersectionLayout, step_length: float = 1.0, emissions: bool = False) -> None:
+    def __init__(
+        self,
+        api: Any,
+        layout: IntersectionLayout,
+        step_length: float = 1.0,
+        emissions: bool = False,
+        approach_zone: float = 0.0,
+    ) -> None:
         self.layout = layout
         self.step_length = step_length
         self._co2 = api.lane.getCO2Emission if emissions else None
@@ -76,6 +89,15 @@ class IntersectionMonitor:
         self._ped_edges = layout.pedestrian_edges
         self._veh_lanes = tuple(zip(layout.vehicle_lanes, (1.0 / c for c in layout.vehicle_capacity), strict=True))
         self._ped_inv_cap = tuple(1.0 / c for c in layout.pedestrian_capacity)
+        self._lane_vehicles = api.lane.getLastStepVehicleIDs
+        self._position = api.vehicle.getLanePosition
+        self._speed = api.vehicle.getSpeed
+        # per vehicle lane: where its approach zone starts [m from the lane's start] and 1 / the zone's capacity
+        self._zones = tuple(
+            (max(0.0, api.lane.getLength(lane) - approach_zone), 1.0 / vehicle_lane_capacity(approach_zone))
+            for lane in layout.vehicle_lanes
+            if approach_zone > 0
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -178,3 +200,17 @@ class IntersectionMonitor:
             dens.append(min(1.0, len(ids) * inv))
             queue.append(min(1.0, n_wait * inv))
         return dens, queue
+
+    def approaching(self) -> list[float]:
+        """Moving vehicles in the approach zone of every incoming vehicle lane, divided by the zone's capacity and
+        clipped to 1 (empty without an ``approach_zone``).
+
+        :return: one number per lane of ``layout.vehicle_lanes``.
+        """
+        if not self._zones:
+            return []
+        position, speed = self._position, self._speed
+        return [
+            min(1.0, sum(position(v) >= start and speed(v) >= 0.1 for v in self._lane_vehicles(lane)) * inv)
+            for (lane, _), (start, inv) in zip(self._veh_lanes, self._zones, strict=True)
+        ]
