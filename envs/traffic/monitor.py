@@ -92,12 +92,13 @@ class IntersectionMonitor:
         self._lane_vehicles = api.lane.getLastStepVehicleIDs
         self._position = api.vehicle.getLanePosition
         self._speed = api.vehicle.getSpeed
-        # per vehicle lane: where its approach zone starts [m from the lane's start] and 1 / the zone's capacity
-        self._zones = tuple(
-            (max(0.0, api.lane.getLength(lane) - approach_zone), 1.0 / vehicle_lane_capacity(approach_zone))
-            for lane in layout.vehicle_lanes
+        # per vehicle lane watched: the lane and where its approach zone starts [m from the lane's start]
+        self._zones = (
+            tuple((lane, max(0.0, api.lane.getLength(lane) - approach_zone)) for lane in layout.vehicle_lanes)
             if approach_zone > 0
+            else ()
         )
+        self._zone_inv_cap = 1.0 / vehicle_lane_capacity(approach_zone)
         self.reset()
 
     def reset(self) -> None:
@@ -207,10 +208,8 @@ class IntersectionMonitor:
 
         :return: one number per lane of ``layout.vehicle_lanes``.
         """
-        if not self._zones:
-            return []
-        position, speed = self._position, self._speed
+        position, speed, inv = self._position, self._speed, self._zone_inv_cap
         return [
             min(1.0, sum(position(v) >= start and speed(v) >= 0.1 for v in self._lane_vehicles(lane)) * inv)
-            for (lane, _), (start, inv) in zip(self._veh_lanes, self._zones, strict=True)
+            for lane, start in self._zones
         ]
