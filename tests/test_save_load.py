@@ -30,7 +30,7 @@ def test_save_load_round_trip(tmp_path, policy):
         loaded = SFDQN.load(tmp_path / "model.zip", env=env)
         assert loaded.reward_dim == 2
         np.testing.assert_array_equal(loaded.weights, model.weights)
-        np.testing.assert_array_equal(loaded.policy.weights.numpy(), model.policy.weights.numpy())
+        np.testing.assert_array_equal(loaded.policy.weights.cpu().numpy(), model.policy.weights.cpu().numpy())
         observations = all_observations(one_hot)
         np.testing.assert_array_equal(loaded.successor_features(observations), model.successor_features(observations))
         for w in (None, [1.0, 0.0], [0.0, 1.0], [0.3, 0.7]):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -29,6 +31,10 @@ def _strip(text: str) -> str:
     return "\n".join(line.rstrip() for line in text.splitlines() if line.strip())
 
 
+@pytest.mark.skipif(
+    importlib.util.find_spec("sumo") is None and shutil.which("netconvert") is None,
+    reason="netconvert not installed (pip install eclipse-sumo)",
+)
 def test_build_reproduces_committed_network(tmp_path):
     out = tmp_path / "rebuilt.net.xml"
     proc = subprocess.run(
