@@ -112,6 +112,10 @@ class PolicyValidation:
     would follow it (in a multi-agent env, typically objects its partner takes first). Its value still goes to the
     schedule, so the weights trained, and the learners, are the same with and without validation.
 
+    With ``together``, the new policies of an iteration that were left out one by one are then tried together: they
+    join Π together if GPI does at least as well with all of them. Two agents' policies can each mislead GPI alone
+    and help it together (one knows the states the other's SFs lead GPI to; measured in README "Four-Room").
+
     With ``prune``, validation also looks back after every iteration: as long as GPI does strictly better on the
     validation weights without one of Π's policies, the policy without which it does best is retired from Π
     (backward elimination). A policy admitted early can mislead GPI later, once the policies its partner acts
@@ -120,11 +124,13 @@ class PolicyValidation:
     :param n_weights: Dirichlet(1) validation weights besides the extrema; 0: every new policy joins Π (the paper)
     :param episodes: episodes per validation weight
     :param prune: also retire policies without which GPI does better (needs ``n_weights > 0``)
+    :param together: also try an iteration's policies left out one by one together (needs ``n_weights > 0``)
     """
 
     n_weights: int = 0
     episodes: int = 1
     prune: bool = False
+    together: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.n_weights, bool) or not isinstance(self.n_weights, int) or self.n_weights < 0:
@@ -133,6 +139,8 @@ class PolicyValidation:
             raise ValueError(f"episodes must be at least 1, got {self.episodes}")
         if self.prune and not self.n_weights:
             raise ValueError("pruning Π needs validation weights: n_weights must be positive")
+        if self.together and not self.n_weights:
+            raise ValueError("admitting policies together needs validation weights: n_weights must be positive")
 
     def weights(self, reward_dim: int, seed: int) -> np.ndarray:
         """The validation weights of a run with ``seed``, shape ``(reward_dim + n_weights, reward_dim)``."""
@@ -264,9 +272,13 @@ class OLSCallback(BaseCallback):
         if self._iteration_bar is not None:
             self._iteration_bar.close()
         self.model.end_iteration()
+        left_out = {}
         for name, value in self._estimate_values().items():
-            if self.schedule.add(value, self.weights[name]):  # a new value: the policy is a candidate for Π
-                self._admit(name, value)
+            # a new value: the policy is a candidate for Π
+            if self.schedule.add(value, self.weights[name]) and not self._admit({name: value}):
+                left_out[name] = value
+        if self.validation.together and len(left_out) > 1:
+            self._admit(left_out)
         if self.validation.prune:
             self._prune()
         self._save_policy_set()  # before the evaluation: its worker processes load Π
@@ -323,20 +335,30 @@ class OLSCallback(BaseCallback):
             name: runner.rollout(policy, episodes, seed).mean_discounted_over() for name, policy in policies.items()
         }
 
-    def _admit(self, name: str, value: np.ndarray) -> None:
-        """Add learner ``name``'s new policy to Π, unless GPI does worse with it on the validation weights."""
+    def _admit(self, values: dict[str, np.ndarray]) -> bool:
+        """
+        Add the new policies of the learners named in ``values`` (name -> value) to Π, unless GPI does worse with
+        them on the validation weights: all of them or none.
+
+        :return: whether they joined Π
+        """
         validate = self.validation.n_weights > 0 and len(self.policy_set) > 0
         before = self._gpi_validation_score() if validate else 0.0
-        self.policy_set.add(self.model.learners[name], value=value, agent=name, iteration=self.iteration + 1)
+        for name, value in values.items():
+            self.policy_set.add(self.model.learners[name], value=value, agent=name, iteration=self.iteration + 1)
         self._validation_score = None  # Π changed
         if validate and (after := self._gpi_validation_score()) < before:
-            self.policy_set.pop()
+            for _ in values:
+                self.policy_set.pop()
             self._validation_score = before
             if self.verbose:
-                print(f"{name}'s policy left out of Π: GPI on the validation weights {after:.4f} with it, "
-                      f"{before:.4f} without")  # fmt: skip
-            return
-        self.record.add(self.model.learners[name], value=value, agent=name, iteration=self.iteration + 1)
+                policies = "policy" if len(values) == 1 else "policies together"
+                print(f"{' and '.join(values)}'s {policies} left out of Π: GPI on the validation weights {after:.4f} "
+                      f"with, {before:.4f} without")  # fmt: skip
+            return False
+        for name, value in values.items():
+            self.record.add(self.model.learners[name], value=value, agent=name, iteration=self.iteration + 1)
+        return True
 
     def _prune(self) -> None:
         """Retire from Π, one at a time, the policy without which GPI does best, while it does better without it."""

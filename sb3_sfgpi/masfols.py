@@ -41,6 +41,7 @@ SETTINGS = (
     "gpi_behaviour",
     "validation_weights",
     "prune",
+    "admit_together",
     "sharing",
     "n_envs",
 )
@@ -48,6 +49,7 @@ SETTINGS = (
 SETTING_DEFAULTS = {
     "validation_weights": 0,
     "prune": False,
+    "admit_together": False,
     "sharing": "independent",
     "n_envs": 1,
     "ols_batch": "top",
@@ -88,6 +90,8 @@ class MASFOLS:
         0: every new policy joins, as in the paper; not for fixed weights)
     :param prune: after every iteration, also retire from Π the policies without which GPI does better on the
         validation weights (needs ``validation_weights > 0``; see :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
+    :param admit_together: after the one-by-one admission of an iteration, also try its policies left out together:
+        they join Π together if GPI does no worse with them all (needs ``validation_weights > 0``)
     :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (every iteration
         trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
         learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the
@@ -126,6 +130,7 @@ class MASFOLS:
         gpi_behaviour: bool = False,
         validation_weights: int = 0,
         prune: bool = False,
+        admit_together: bool = False,
         sharing: str = "independent",
         n_envs: int = 1,
         env_fn: Callable[..., ParallelEnv] | None = None,
@@ -168,6 +173,7 @@ class MASFOLS:
             "gpi_behaviour": gpi_behaviour,
             "validation_weights": validation_weights,
             "prune": prune,
+            "admit_together": admit_together,
             "sharing": sharing,
             "n_envs": n_envs,
         }
@@ -181,7 +187,7 @@ class MASFOLS:
             steps_per_iteration,
             evaluation,
             ValueEstimation(value_mode, value_episodes),
-            PolicyValidation(validation_weights, prune=prune),
+            PolicyValidation(validation_weights, prune=prune, together=admit_together),
             run_dir=self.run_dir,
             transfer=transfer,
             gpi_behaviour=gpi_behaviour,

@@ -124,10 +124,11 @@ def test_plot_mean_over_seeds_forward_fills_runs_that_ended_early():
     np.testing.assert_allclose(values, [[1.0, 2.0], [3.0, 3.0]])
 
 
-def test_a_preset_with_a_prune_that_is_not_a_bool_is_refused():
+@pytest.mark.parametrize("key", ["prune", "admit_together"])
+def test_a_preset_with_a_validation_rule_that_is_not_a_bool_is_refused(key):
     assert DomainPreset.from_dict("four-room", four_room()).validation_weights > 0
-    with pytest.raises(UsageError, match="prune must be true or false, got 'yes'"):
-        DomainPreset.from_dict("four-room", {**four_room(), "prune": "yes"})
+    with pytest.raises(UsageError, match=f"{key} must be true or false, got 'yes'"):
+        DomainPreset.from_dict("four-room", {**four_room(), key: "yes"})
 
 
 def test_compare_takes_fixed_runs_of_the_same_env_and_refuses_others(run_dir, tmp_path, capsys):

@@ -13,7 +13,7 @@ from tensorboard_scalars import scalar_steps
 
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.masfols import MASFOLS, SETTINGS
+from sb3_sfgpi.masfols import MASFOLS, SETTING_DEFAULTS, SETTINGS
 
 #: The chain's tabular learner settings, without the policy (MASFOLS takes it apart).
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
@@ -157,13 +157,18 @@ def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):
     assert json.loads((tmp_path / "cut" / "checkpoint.json").read_text())["iteration"] == len(whole.history)
 
 
-def test_a_run_written_before_validation_existed_continues_without_it(tmp_path):
-    make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=1)
+@pytest.mark.parametrize(
+    ("setting", "kwargs"), [("validation_weights", {}), ("admit_together", {"validation_weights": 2})]
+)
+def test_a_run_written_before_a_setting_existed_continues_without_it(tmp_path, setting, kwargs):
+    make(steps=50, weights="random", run_dir=tmp_path, **kwargs).learn(max_iterations=1)
     config = json.loads((tmp_path / "run.json").read_text())
-    del config["validation_weights"]
+    del config[setting]
     (tmp_path / "run.json").write_text(json.dumps(config))
     continued = MASFOLS.load(tmp_path, ParallelChainEnv(2))
-    assert continued.settings["validation_weights"] == 0 and continued.callback.validation.n_weights == 0
+    assert continued.settings[setting] == SETTING_DEFAULTS[setting]
+    validation = continued.callback.validation
+    assert (validation.n_weights, validation.together) == (kwargs.get("validation_weights", 0), False)
     assert len(continued.learn(max_iterations=2).history) == 2
 
 

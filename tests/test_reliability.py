@@ -61,6 +61,7 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
         (["--learner", "learning_rate=abc"], "learning_rate must be a number >= 0 or a schedule, got 'abc'"),
         (["--algo", "fixed", "--w", "1", "0", "0", "--validation-weights", "3"], "not for --algo fixed"),
         (["--validation-weights", "0", "--prune"], "--prune needs validation weights (--validation-weights N"),
+        (["--validation-weights", "0", "--admit-together"], "--admit-together needs validation weights"),
         (["--algo", "random", "--ols-batch", "spread"], "--ols-batch is only for --algo ma-sfols"),
     ],
 )
@@ -99,6 +100,7 @@ def test_numpy_scalars_are_accepted_as_options():
         (["--gpi-behaviour"], "--gpi-behaviour True would change the run's gpi_behaviour (False)"),
         (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (4)"),
         (["--no-prune"], "--prune False would change the run's prune (True)"),
+        (["--no-admit-together"], "--admit-together False would change the run's admit_together (True)"),
         (["--ols-batch", "top"], "--ols-batch top would change the run's ols_batch (same-after-extrema)"),
     ],
 )

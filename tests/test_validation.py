@@ -7,6 +7,8 @@ import json
 
 import numpy as np
 import pytest
+import torch as th
+from momdp import N_ACTIONS, N_STATES, REWARD_DIM
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv
 
 from sb3_sfgpi import EvaluationConfig, MultiAgentRunner, OLSCallback, PolicyValidation
@@ -45,10 +47,12 @@ def run(
     iterations: int = 3,
     liar: tuple[str, int] = LIAR,
     prune: bool = False,
+    together: bool = False,
+    factory: LearnerFactory | None = None,
     **kwargs,
 ) -> OLSCallback:
-    runner = MultiAgentRunner(ParallelChainEnv(2), liar_factory(liar), seed=0)
-    validation = PolicyValidation(n_weights, prune=prune)
+    runner = MultiAgentRunner(ParallelChainEnv(2), factory or liar_factory(liar), seed=0)
+    validation = PolicyValidation(n_weights, prune=prune, together=together)
     evaluation = EvaluationConfig(TEST_WEIGHTS)
     callback = OLSCallback(
         RandomSchedule(), steps, evaluation, validation=validation, max_iterations=iterations, **kwargs
@@ -167,3 +171,79 @@ def test_pruning_needs_validation_weights():
         PolicyValidation(0, prune=True)
     with pytest.raises(ValueError, match="n_weights must be positive"):
         MASFOLS(ParallelChainEnv(2), prune=True)
+
+
+# --- admitting together ---------------------------------------------------------------------------------------------
+A, B, C = range(N_ACTIONS)  # the chain's rewards: s0 A (1, 9), B (8, 9), C (1, 5); s1 A (8, 7), B (7, 7), C (5, 2);
+# s2 A (3, 6), B (9, 0), C (6, 1); s3 A (1, 0), B (4, 8), C (0, 5)
+
+
+def promising(choices: dict[int, tuple[int, float]]) -> np.ndarray:
+    """A ψ table that promises ``(v, v)`` for one action in some states (state -> (action, v)), 0 elsewhere: GPI
+    follows, in each state, the table that promises most, whatever the weights."""
+    table = np.zeros((N_STATES, N_ACTIONS, REWARD_DIM), dtype=np.float32)
+    for state, (action, v) in choices.items():
+        table[state, action] = v
+    return table
+
+
+FIRST = promising({0: (A, 10), 1: (B, 10), 2: (C, 10), 3: (C, 10)})  # (14, 22): second best in s0, s1 and s3
+#: Two agents' policies of the second iteration: one leads GPI to a worse action in s0 (by (0, 4)) and a better one in
+#: s1 (by (1, 0)), the other to a better one in s0 (by (7, 0)) and a worse one in s1 (by (2, 5)). Each alone is worse
+#: than Π on the validation weights (their mean is (0.32, 0.68)); together each one's promise outbids the other's
+#: where it leads to the better action.
+HALVES = (promising({0: (C, 20), 1: (A, 40)}), promising({0: (B, 30), 1: (C, 30)}))
+
+
+def frozen_factory(tables: dict[tuple[str, int], np.ndarray]) -> LearnerFactory:
+    """The chain's learners with the ψ tables given by (agent, 0-based iteration), that never learn."""
+    make = default_learner_factory(**CHAIN_LEARNER)
+    by_seed = {derive_seed(0, iteration, agent): table for (agent, iteration), table in tables.items()}
+
+    def factory(name, view, weights, seed):
+        model = make(name, view, weights, seed)
+        with th.no_grad():
+            model.policy.sf_net.table.weight.copy_(th.as_tensor(by_seed[seed].reshape(N_STATES, -1)))
+        model.policy.sf_net_target.load_state_dict(model.policy.sf_net.state_dict())
+        model.train = lambda gradient_steps, batch_size=100: None
+        return model
+
+    return factory
+
+
+HALVES_RUN = frozen_factory(
+    {("agent_0", 0): FIRST, ("agent_1", 0): FIRST, ("agent_0", 1): HALVES[0], ("agent_1", 1): HALVES[1]}
+)
+
+
+def test_policies_that_only_help_gpi_together_join_together():
+    one_by_one = run(4, iterations=2, factory=HALVES_RUN)
+    together = run(4, iterations=2, together=True, factory=HALVES_RUN)
+    runner, policy_set = together.model, together.policy_set
+    first, *alone = (validation_score(runner, policy_set.subset(members)) for members in ([0], [0, 1], [0, 2]))
+    assert max(alone) < first < validation_score(runner, policy_set)  # each alone makes GPI worse, both better
+    assert [(i.agent, i.iteration) for i in one_by_one.policy_set.infos] == [("agent_0", 1)]
+    assert [(i.agent, i.iteration) for i in together.policy_set.infos] == [
+        ("agent_0", 1), ("agent_0", 2), ("agent_1", 2)
+    ]  # fmt: skip
+    assert len(one_by_one.record) == 1 and len(together.record) == 3  # left out: not in the run's record
+    assert together._gpi_validation_score() == pytest.approx(validation_score(runner, together.policy_set))
+    assert together.history[1]["mean_return"] > one_by_one.history[1]["mean_return"]
+    # the same weights were trained and the same values went to the schedule
+    assert json.dumps(together.schedule.state_dict()) == json.dumps(one_by_one.schedule.state_dict())
+
+
+def test_policies_that_are_worse_together_stay_out():
+    worse = promising({1: (C, 50)})  # outbids HALVES[0] in s1 and leads GPI to the worst action there
+    tables = {("agent_0", 0): FIRST, ("agent_1", 0): FIRST, ("agent_0", 1): HALVES[0], ("agent_1", 1): worse}
+    callback = run(4, iterations=2, together=True, factory=frozen_factory(tables))
+    assert [(i.agent, i.iteration) for i in callback.policy_set.infos] == [("agent_0", 1)]
+    assert len(callback.record) == 1
+    assert callback._gpi_validation_score() == pytest.approx(validation_score(callback.model, callback.policy_set))
+
+
+def test_admitting_together_needs_validation_weights():
+    with pytest.raises(ValueError, match="n_weights must be positive"):
+        PolicyValidation(0, together=True)
+    with pytest.raises(ValueError, match="n_weights must be positive"):
+        MASFOLS(ParallelChainEnv(2), admit_together=True)

@@ -49,6 +49,8 @@ class DomainPreset:
         :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
     :param prune: also retire, after every iteration, the policies without which GPI does better on the validation
         weights (with ``validation_weights > 0``)
+    :param admit_together: also try an iteration's policies left out by validation together (with
+        ``validation_weights > 0``)
     :param eval_workers: default number of evaluation processes
     :param objectives: the objectives' names, one per reward component
     :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions
@@ -73,6 +75,7 @@ class DomainPreset:
     ols_batch: str = "top"
     validation_weights: int = 0
     prune: bool = False
+    admit_together: bool = False
     eval_workers: int = 0
     objectives: list[str] | None = None
     baselines: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -152,8 +155,9 @@ class DomainPreset:
             raise UsageError(f"domain {self.name!r}: learner_kwargs lacks 'policy'")
         if self.ols_batch not in OLS_BATCHES:
             raise UsageError(f"domain {self.name!r}: ols_batch must be one of {OLS_BATCHES}, got {self.ols_batch!r}")
-        if not isinstance(self.prune, bool):
-            raise UsageError(f"domain {self.name!r}: prune must be true or false, got {self.prune!r}")
+        for key in ("prune", "admit_together"):
+            if not isinstance(getattr(self, key), bool):
+                raise UsageError(f"domain {self.name!r}: {key} must be true or false, got {getattr(self, key)!r}")
 
 
 def _required(spec: Field) -> bool:

@@ -107,6 +107,12 @@ def add_parser(sub: Any) -> None:
         "validation weights (needs validation weights; default: the domain's)",
     )
     train.add_argument(
+        "--admit-together",
+        action=argparse.BooleanOptionalAction,
+        help="after an iteration's policies were validated one by one, also try those left out together: they join "
+        "the set if GPI does at least as well with them all (needs validation weights; default: the domain's)",
+    )
+    train.add_argument(
         "--torch-threads",
         type=int,
         default=1,
@@ -216,7 +222,10 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "ols_batch": _ols_batch(args, preset),
         "value_mode": args.value_mode or preset.value_mode,
         "validation_weights": (validation_weights := _validation_weights(args, preset)),
-        "prune": _prune(args, preset, validation_weights),
+        "prune": _validation_rule("--prune", args.prune, preset.prune, validation_weights),
+        "admit_together": _validation_rule(
+            "--admit-together", args.admit_together, preset.admit_together, validation_weights
+        ),
         "sharing": args.sharing or SETTING_DEFAULTS["sharing"],
         "n_envs": SETTING_DEFAULTS["n_envs"] if args.n_envs is None else args.n_envs,
     }
@@ -245,13 +254,13 @@ def _validation_weights(args: argparse.Namespace, preset: DomainPreset) -> int:
     return args.validation_weights
 
 
-def _prune(args: argparse.Namespace, preset: DomainPreset, validation_weights: int) -> bool:
-    """Whether validation also prunes Π: the option's, else the domain's where there are validation weights."""
-    if args.prune is None:
-        return preset.prune and validation_weights > 0
-    if args.prune and not validation_weights:
-        raise UsageError("--prune needs validation weights (--validation-weights N with N > 0)")
-    return args.prune
+def _validation_rule(option: str, given: bool | None, domains: bool, validation_weights: int) -> bool:
+    """Whether the validation rule ``option`` is on: as given, else the domain's where there are validation weights."""
+    if given is None:
+        return domains and validation_weights > 0
+    if given and not validation_weights:
+        raise UsageError(f"{option} needs validation weights (--validation-weights N with N > 0)")
+    return given
 
 
 def _fixed_budget(args: argparse.Namespace, iterations: int, steps_per_iteration: int) -> dict[str, Any]:
@@ -290,6 +299,7 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
         "--gpi-behaviour",
         "--validation-weights",
         "--prune",
+        "--admit-together",
         "--sharing",
         "--n-envs",
     ):
@@ -338,6 +348,7 @@ def _model(
         gpi_behaviour=config["gpi_behaviour"],
         validation_weights=config["validation_weights"],
         prune=config["prune"],
+        admit_together=config["admit_together"],
         sharing=config["sharing"],
         n_envs=config["n_envs"],
         run_info=config,
