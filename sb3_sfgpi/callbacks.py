@@ -272,7 +272,7 @@ class OLSCallback(BaseCallback):
         if self._iteration_bar is not None:
             self._iteration_bar.close()
         self.model.end_iteration()
-        left_out = {}
+        left_out: dict[str, np.ndarray] = {}
         for name, value in self._estimate_values().items():
             # a new value: the policy is a candidate for Π
             if self.schedule.add(value, self.weights[name]) and not self._admit({name: value}):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -42,6 +43,19 @@ BAD_WEIGHTS = [
     pytest.param([float("nan"), 1.0], "finite", id="nan"),
     pytest.param([0.0, 0.0], "all zero", id="all-zero"),
 ]
+
+
+@pytest.fixture(autouse=True, scope="session")
+def sb3_log_folder(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """SB3's ``learn()`` without a TensorBoard folder makes a folder ``SB3-<time>`` in the system's temporary
+    directory at every call (as SB3's DQN does): the tests' go to pytest's temporary directory instead."""
+    before = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3"))
+    yield
+    if before is None:
+        del os.environ["SB3_LOGDIR"]
+    else:
+        os.environ["SB3_LOGDIR"] = before
 
 
 @pytest.fixture
