@@ -96,7 +96,8 @@ def traffic() -> dict[str, Any]:
     does no worse with it on 12 validation weights, and leaves it when GPI does better without it (3 seeds, with
     the previous budget of 6 x 4,000 steps: GPI's final mean w·return -0.451 +/- 0.067 -> -0.385 +/- 0.023; within
     2.3% of the scalarised learners at their weights, from 3.3-12.5% below; with 3 x 8,000, 13.8-17.4% above them).
-    Validation costs 15 GPI episodes per candidate.
+    Validation costs 15 GPI episodes per candidate. Four-Room's ``admit_together`` is off: on those three seeds it
+    tried an iteration's left-out policies together 4 times and kept them out every time (GPI 0.02–0.10 lower).
 
     Another network: ``--env net_file=NET --env route_file=ROUTES`` (and ``--env 'objectives=["vehicle_waiting",
     "co2"]'`` where it has no pedestrian crossings); MA-SFOLS needs lights with the same observation and action
