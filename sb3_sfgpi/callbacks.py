@@ -114,7 +114,9 @@ class PolicyValidation:
 
     With ``together``, the new policies of an iteration that were left out one by one are then tried together: they
     join Π together if GPI does at least as well with all of them. Two agents' policies can each mislead GPI alone
-    and help it together (one knows the states the other's SFs lead GPI to; measured in README "Four-Room").
+    and help it together (one knows the states the other's SFs lead GPI to; measured in README "Four-Room"). Only
+    the whole group is tried, and only when two or more were left out: one policy left out before a later one of its
+    iteration joined is not tried again. With a shared learner an iteration has one policy, and this does nothing.
 
     With ``prune``, validation also looks back after every iteration: as long as GPI does strictly better on the
     validation weights without one of Π's policies, the policy without which it does best is retired from Π

@@ -91,7 +91,8 @@ class MASFOLS:
     :param prune: after every iteration, also retire from Π the policies without which GPI does better on the
         validation weights (needs ``validation_weights > 0``; see :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
     :param admit_together: after the one-by-one admission of an iteration, also try its policies left out together:
-        they join Π together if GPI does no worse with them all (needs ``validation_weights > 0``)
+        they join Π together if GPI does no worse with them all (needs ``validation_weights > 0``; nothing to do with
+        ``sharing="shared"``: one policy per iteration)
     :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (every iteration
         trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
         learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the

@@ -136,6 +136,7 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
         {"weights": "ols"},
         {"weights": "random"},
         {"weights": "random", "validation_weights": 3},
+        {"weights": "random", "validation_weights": 3, "prune": True, "admit_together": True},
         {"weights": "random", "sharing": "shared"},
         {"weights": "ols", "gpi_behaviour": True},
     ],
@@ -158,7 +159,8 @@ def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):
 
 
 @pytest.mark.parametrize(
-    ("setting", "kwargs"), [("validation_weights", {}), ("admit_together", {"validation_weights": 2})]
+    ("setting", "kwargs"),
+    [("validation_weights", {}), ("admit_together", {"validation_weights": 2, "admit_together": True})],
 )
 def test_a_run_written_before_a_setting_existed_continues_without_it(tmp_path, setting, kwargs):
     make(steps=50, weights="random", run_dir=tmp_path, **kwargs).learn(max_iterations=1)

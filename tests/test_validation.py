@@ -233,10 +233,11 @@ def test_policies_that_only_help_gpi_together_join_together():
     assert json.dumps(together.schedule.state_dict()) == json.dumps(one_by_one.schedule.state_dict())
 
 
-def test_policies_that_are_worse_together_stay_out():
+def test_policies_that_are_worse_together_stay_out(capsys):
     worse = promising({1: (C, 50)})  # outbids HALVES[0] in s1 and leads GPI to the worst action there
     tables = {("agent_0", 0): FIRST, ("agent_1", 0): FIRST, ("agent_0", 1): HALVES[0], ("agent_1", 1): worse}
-    callback = run(4, iterations=2, together=True, factory=frozen_factory(tables))
+    callback = run(4, iterations=2, together=True, factory=frozen_factory(tables), verbose=1)
+    assert "agent_0 and agent_1's policies together left out of Π" in capsys.readouterr().out  # tried, kept out
     assert [(i.agent, i.iteration) for i in callback.policy_set.infos] == [("agent_0", 1)]
     assert len(callback.record) == 1
     assert callback._gpi_validation_score() == pytest.approx(validation_score(callback.model, callback.policy_set))

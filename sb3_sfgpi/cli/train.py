@@ -304,9 +304,9 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
         "--n-envs",
     ):
         key = option[2:].replace("-", "_")
-        given = getattr(args, key) is not None
-        if given and config[key] != saved.get(key, SETTING_DEFAULTS.get(key)):
-            raise UsageError(f"--resume: {option} {config[key]} would change the run's {key} ({saved.get(key)})")
+        stored = saved.get(key, SETTING_DEFAULTS.get(key))
+        if getattr(args, key) is not None and config[key] != stored:
+            raise UsageError(f"--resume: {option} {config[key]} would change the run's {key} ({stored})")
     for key in ("domain", "algorithm", "seed", "weights"):
         if saved.get(key) != config.get(key):
             raise UsageError(f"--resume: {run_dir} is a run with {key}={saved.get(key)!r}, not {config.get(key)!r}")
