@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -49,13 +48,9 @@ BAD_WEIGHTS = [
 def sb3_log_folder(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     """SB3's ``learn()`` without a TensorBoard folder makes a folder ``SB3-<time>`` in the system's temporary
     directory at every call (as SB3's DQN does): the tests' go to pytest's temporary directory instead."""
-    before = os.environ.get("SB3_LOGDIR")
-    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3"))
-    yield
-    if before is None:
-        del os.environ["SB3_LOGDIR"]
-    else:
-        os.environ["SB3_LOGDIR"] = before
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3")))
+        yield
 
 
 @pytest.fixture
