@@ -1,0 +1,159 @@
+"""Replay policy validation over a run that kept every candidate policy, without training again.
+
+Validation leaves training as it is: whichever policies join Π, the weights trained, the learners and their
+policies are the same (a left-out policy's value still goes to the schedule). A run trained with
+``--validation-weights 0 --no-prune`` keeps every candidate in its policy set, so validation's rules can be replayed
+over it: the replay gives, to the last digit on the same machine, the curve of a run trained with those rules
+(``tests/test_validation_replay.py`` checks it). After every iteration, as
+:class:`~sb3_sfgpi.callbacks.PolicyValidation` does it:
+
+* the iteration's new policies, one by one, join Π unless GPI does worse with them on the validation weights;
+* ``--admit-together``: those left out are then tried together;
+* ``--recall`` (a rule the package does not have): the candidates so far that are not in Π (left out, or retired)
+  are tried again, and the one with which GPI does best joins while GPI does strictly better;
+* ``--prune``: the policy without which GPI does best is retired while GPI does strictly better without it.
+
+It prints, after every iteration, |Π| and GPI's mean w·return over the run's test weights (as the run's
+evaluation: its episodes and seeds), then the final members of Π. Scores are cached by set: a replay costs one
+score per set tried.
+
+Run: ``python examples/validation_replay.py RUN_DIR [--validation-weights N] [--admit-together] [--prune]
+[--recall]``, e.g. over ``sb3-sfgpi train four-room --validation-weights 0 --no-prune --no-admit-together``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Iterable
+
+import numpy as np
+
+from sb3_sfgpi.callbacks import PolicyValidation
+from sb3_sfgpi.cli.presets import load_domain
+from sb3_sfgpi.common.rollouts import run_episodes
+from sb3_sfgpi.common.seeding import derive_seed
+from sb3_sfgpi.evaluation import summarize_test_episodes
+from sb3_sfgpi.run_directory import RunDirectory
+
+
+class Candidates:
+    """Every candidate policy of a run, and GPI's score over any subset of them (cached)."""
+
+    def __init__(self, run_dir: RunDirectory, n_validation_weights: int):
+        config = run_dir.read_config()
+        state = run_dir.read_checkpoint()
+        self.record = run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
+        self.iterations = state["iteration"]
+        self.env = load_domain(config["domain"]).make_env(**config["env_kwargs"])
+        self.gamma = config["learner_kwargs"].get("gamma", 0.99)
+        self.seed = config["seed"]
+        self.test_episodes = config["eval_episodes"]
+        self.test_weights = np.asarray(config["test_weights"], dtype=np.float64)
+        self.validation_weights = PolicyValidation(n_validation_weights).weights(self.test_weights.shape[1], self.seed)
+        self._scores: dict[tuple[tuple[int, ...], str], float] = {}
+
+    def of_iteration(self, iteration: int) -> list[int]:
+        """The indices of the candidates made in ``iteration`` (numbered from 1)."""
+        return [i for i, info in enumerate(self.record.infos) if info.iteration == iteration]
+
+    def validation(self, members: Iterable[int]) -> float:
+        """GPI over ``members`` on the validation weights, as validation scores it."""
+        return self._score(members, self.validation_weights, 1, "validation")
+
+    def test(self, members: Iterable[int]) -> float:
+        """GPI over ``members`` on the test weights, as the run's evaluation scores it."""
+        return self._score(members, self.test_weights, self.test_episodes, "eval")
+
+    def _score(self, members: Iterable[int], weights: np.ndarray, episodes: int, purpose: str) -> float:
+        key = (tuple(members), purpose)
+        if key not in self._scores:
+            policy_set = self.record.subset(key[0])  # in Π's order: GPI breaks ties by it
+            seeds = [derive_seed(self.seed, purpose, i) for i in range(len(weights))]
+            returns = [
+                run_episodes(self.env, policy_set.joint_policy(w), episodes, self.gamma, seed)
+                for w, seed in zip(weights, seeds, strict=True)
+            ]
+            self._scores[key] = summarize_test_episodes(weights, returns)[0]["mean_return"]
+        return self._scores[key]
+
+
+def admit(candidates: Candidates, members: list[int], new: list[int], together: bool) -> list[int]:
+    """Π after the iteration's ``new`` policies were tried one by one (then, with ``together``, those left out)."""
+    left_out = []
+    for index in new:
+        if not members or candidates.validation(members + [index]) >= candidates.validation(members):
+            members = members + [index]
+        else:
+            left_out.append(index)
+    if together and len(left_out) > 1 and candidates.validation(members + left_out) >= candidates.validation(members):
+        members = members + left_out
+    return members
+
+
+def recall(candidates: Candidates, members: list[int], iteration: int) -> list[int]:
+    """Π after adding, while GPI does strictly better, the candidate so far with which it does best."""
+    made = [i for i, info in enumerate(candidates.record.infos) if info.iteration <= iteration]
+    while rest := [i for i in made if i not in members]:
+        scores = [candidates.validation(members + [i]) for i in rest]
+        best = int(np.argmax(scores))
+        if scores[best] <= candidates.validation(members):
+            break
+        members = members + [rest[best]]
+    return members
+
+
+def prune(candidates: Candidates, members: list[int]) -> list[int]:
+    """Π after retiring, while GPI does strictly better without it, the policy without which it does best."""
+    while len(members) > 1:
+        scores = [candidates.validation(members[:i] + members[i + 1 :]) for i in range(len(members))]
+        worst = int(np.argmax(scores))
+        if scores[worst] <= candidates.validation(members):
+            break
+        members = members[:worst] + members[worst + 1 :]
+    return members
+
+
+def replay(candidates: Candidates, together: bool, recalling: bool, pruning: bool) -> list[list[int]]:
+    """Π after every iteration under the rules given (indices into the run's candidates, in Π's order)."""
+    members: list[int] = []
+    history = []
+    for iteration in range(1, candidates.iterations + 1):
+        members = admit(candidates, members, candidates.of_iteration(iteration), together)
+        if recalling:
+            members = recall(candidates, members, iteration)
+        if pruning:
+            members = prune(candidates, members)
+        history.append(members)
+    return history
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("run_dir", help="a run of sb3-sfgpi train with --validation-weights 0 --no-prune")
+    parser.add_argument("--validation-weights", type=int, default=100, metavar="N", help="Dirichlet(1) weights (100)")
+    parser.add_argument("--admit-together", action="store_true", help="try an iteration's left-out policies together")
+    parser.add_argument("--recall", action="store_true", help="try the candidates not in Π again every iteration")
+    parser.add_argument("--prune", action="store_true", help="retire policies without which GPI does better")
+    args = parser.parse_args(argv)
+    run_dir = RunDirectory(args.run_dir)
+    config = run_dir.read_config()
+    if config.get("validation_weights") != 0 or config.get("prune"):
+        parser.error(f"{args.run_dir} was trained with validation: replay needs --validation-weights 0 --no-prune")
+    if config.get("gpi_set", "all") != "all":
+        parser.error(f"{args.run_dir} acts by GPI over its CCS: validation scores GPI over all of Π")
+    if args.validation_weights < 1:
+        parser.error(f"--validation-weights must be positive, got {args.validation_weights}")
+    candidates = Candidates(run_dir, args.validation_weights)
+    history = replay(candidates, args.admit_together, args.recall, args.prune)
+    for iteration, members in enumerate(history, start=1):
+        print(f"iteration {iteration}: |Π|={len(members)} mean w·return (discounted)={candidates.test(members):.4f}")
+    members = history[-1]
+    made = [(candidates.record.infos[i].agent, candidates.record.infos[i].iteration) for i in members]
+    print(f"Π at the end ({len(members)} of {len(candidates.record)} candidates): " + ", ".join(
+        f"{agent}'s of iteration {iteration}" for agent, iteration in made
+    ))  # fmt: skip
+    candidates.env.close()
+
+
+if __name__ == "__main__":
+    main()
