@@ -17,8 +17,9 @@ It prints, after every iteration, |Π| and GPI's mean w·return over the run's t
 evaluation: its episodes and seeds), then the final members of Π. Scores are cached by set: a replay costs one
 score per set tried.
 
-Run: ``python examples/validation_replay.py RUN_DIR [--validation-weights N] [--admit-together] [--prune]
-[--recall]``, e.g. over ``sb3-sfgpi train four-room --validation-weights 0 --no-prune --no-admit-together``.
+Run: ``python examples/validation_replay.py RUN_DIR [--validation-weights N] [--[no-]admit-together] [--[no-]prune]
+[--recall]`` (the options as ``sb3-sfgpi train``'s, the domain's by default), e.g. over a run of ``sb3-sfgpi train
+four-room --validation-weights 0 --no-prune --no-admit-together``.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from sb3_sfgpi.callbacks import PolicyValidation
+from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
@@ -127,29 +129,45 @@ def replay(candidates: Candidates, together: bool, recalling: bool, pruning: boo
     return history
 
 
+def load(args: argparse.Namespace) -> tuple[Candidates, bool, bool]:
+    """The run's candidates and the rules to replay (the options given, else the domain's).
+
+    :raises ValueError: not a run that kept every candidate, or no validation weights
+    :raises UsageError: a run of a domain that is not installed
+    """
+    run_dir = RunDirectory(args.run_dir)
+    config = run_dir.read_config(required=("domain", "seed", "test_weights", "env_kwargs", "learner_kwargs"))
+    if config.get("validation_weights") != 0 or config.get("prune"):
+        raise ValueError(f"{args.run_dir} was trained with validation: replay needs --validation-weights 0 --no-prune")
+    if config.get("gpi_set", "all") != "all":
+        raise ValueError(f"{args.run_dir} acts by GPI over its CCS: validation scores GPI over all of Π")
+    preset = load_domain(config["domain"])
+    n_weights = preset.validation_weights if args.validation_weights is None else args.validation_weights
+    if n_weights < 1:
+        raise ValueError(f"validation needs validation weights: --validation-weights N with N > 0, got {n_weights}")
+    together = preset.admit_together if args.admit_together is None else args.admit_together
+    pruning = preset.prune if args.prune is None else args.prune
+    return Candidates(run_dir, n_weights), together, pruning
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", help="a run of sb3-sfgpi train with --validation-weights 0 --no-prune")
-    parser.add_argument("--validation-weights", type=int, default=100, metavar="N", help="Dirichlet(1) weights (100)")
-    parser.add_argument("--admit-together", action="store_true", help="try an iteration's left-out policies together")
+    parser.add_argument("--validation-weights", type=int, metavar="N", help="Dirichlet(1) weights (the domain's)")
+    flag = argparse.BooleanOptionalAction
+    parser.add_argument("--admit-together", action=flag, help="try left-out policies together (the domain's)")
+    parser.add_argument("--prune", action=flag, help="retire policies without which GPI does better (the domain's)")
     parser.add_argument("--recall", action="store_true", help="try the candidates not in Π again every iteration")
-    parser.add_argument("--prune", action="store_true", help="retire policies without which GPI does better")
     args = parser.parse_args(argv)
-    run_dir = RunDirectory(args.run_dir)
-    config = run_dir.read_config()
-    if config.get("validation_weights") != 0 or config.get("prune"):
-        parser.error(f"{args.run_dir} was trained with validation: replay needs --validation-weights 0 --no-prune")
-    if config.get("gpi_set", "all") != "all":
-        parser.error(f"{args.run_dir} acts by GPI over its CCS: validation scores GPI over all of Π")
-    if args.validation_weights < 1:
-        parser.error(f"--validation-weights must be positive, got {args.validation_weights}")
-    candidates = Candidates(run_dir, args.validation_weights)
-    history = replay(candidates, args.admit_together, args.recall, args.prune)
+    try:
+        candidates, together, pruning = load(args)
+    except (ValueError, UsageError) as error:
+        parser.error(str(error))
+    history = replay(candidates, together, args.recall, pruning)
     for iteration, members in enumerate(history, start=1):
         print(f"iteration {iteration}: |Π|={len(members)} mean w·return (discounted)={candidates.test(members):.4f}")
-    members = history[-1]
-    made = [(candidates.record.infos[i].agent, candidates.record.infos[i].iteration) for i in members]
-    print(f"Π at the end ({len(members)} of {len(candidates.record)} candidates): " + ", ".join(
+    made = [(candidates.record.infos[i].agent, candidates.record.infos[i].iteration) for i in history[-1]]
+    print(f"Π at the end ({len(made)} of {len(candidates.record)} candidates): " + ", ".join(
         f"{agent}'s of iteration {iteration}" for agent, iteration in made
     ))  # fmt: skip
     candidates.env.close()

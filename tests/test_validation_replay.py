@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import json
 from pathlib import Path
@@ -9,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from sb3_sfgpi.cli import main
+from sb3_sfgpi.cli.presets import load_domain
 
 EXAMPLE = Path(__file__).parents[1] / "examples" / "validation_replay.py"
 TRAIN = ["train", "four-room", "--iterations", "4", "--steps-per-iteration", "400", "--n-test-weights", "4"]
@@ -51,9 +53,27 @@ def test_the_replay_gives_the_validated_runs_curve(example, runs, capsys):
     assert evaluations[-1]["n_policies"] < candidates  # validation chose: the replay had something to reproduce
 
 
-def test_the_replay_refuses_a_validated_run(example, runs, capsys):
-    validated, _ = runs
+def test_the_replay_takes_the_domains_rules_by_default(example, runs):
+    _, kept = runs
+    options = argparse.Namespace(run_dir=str(kept), validation_weights=None, admit_together=None, prune=None)
+    candidates, together, pruning = example.load(options)
+    preset = load_domain("four-room")
+    assert (together, pruning) == (preset.admit_together, preset.prune) == (True, True)
+    assert len(candidates.validation_weights) == preset.validation_weights + 3  # and the extrema
+    candidates.env.close()
+
+
+@pytest.mark.parametrize(
+    ("which", "extra", "message"),
+    [
+        ("validated", [], "replay needs --validation-weights 0 --no-prune"),
+        ("kept", ["--validation-weights", "0"], "validation needs validation weights"),
+        ("nowhere", [], "is not a run directory"),
+    ],
+)
+def test_the_replay_refuses_what_it_cannot_replay(example, runs, capsys, which, extra, message):
+    validated, kept = runs
     with pytest.raises(SystemExit) as exit_info:
-        example.main([str(validated)])
+        example.main([str({"validated": validated, "kept": kept}.get(which, kept.parent / which)), *extra])
     assert exit_info.value.code == 2
-    assert "replay needs --validation-weights 0 --no-prune" in capsys.readouterr().err
+    assert message in capsys.readouterr().err
