@@ -1,7 +1,8 @@
 """Replay policy validation over a run that kept every candidate policy, without training again.
 
 Validation leaves training as it is: whichever policies join Π, the weights trained, the learners and their
-policies are the same (a left-out policy's value still goes to the schedule). A run trained with
+policies are the same (a left-out policy's value still goes to the schedule), unless Π is in the training loop
+(``--transfer``, ``--gpi-behaviour``, ``--value-mode gpi``: such runs are refused). A run trained with
 ``--validation-weights 0 --no-prune`` keeps every candidate in its policy set, so validation's rules can be replayed
 over it: the replay gives, to the last digit on the same machine, the curve of a run trained with those rules
 (``tests/test_validation_replay.py`` checks it). After every iteration, as
@@ -25,7 +26,7 @@ four-room --validation-weights 0 --no-prune --no-admit-together``.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 
@@ -35,41 +36,57 @@ from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.evaluation import summarize_test_episodes
+from sb3_sfgpi.masfols import SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
 
 
 class Candidates:
-    """Every candidate policy of a run, and GPI's score over any subset of them (cached)."""
+    """
+    Every candidate policy of a run, and GPI's score over any subset of them (cached by subset).
 
-    def __init__(self, run_dir: RunDirectory, n_validation_weights: int):
-        config = run_dir.read_config()
+    :param run_dir: a run that kept every candidate (see :func:`load`)
+    :param config: its settings (``run.json``)
+    :param env: the run's env
+    :param validation: the validation weights and episodes to score with
+    """
+
+    def __init__(self, run_dir: RunDirectory, config: dict[str, Any], env: Any, validation: PolicyValidation):
         state = run_dir.read_checkpoint()
         self.record = run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
         self.iterations = state["iteration"]
-        self.env = load_domain(config["domain"]).make_env(**config["env_kwargs"])
+        self.env = env
         self.gamma = config["learner_kwargs"].get("gamma", 0.99)
         self.seed = config["seed"]
         self.test_episodes = config["eval_episodes"]
         self.test_weights = np.asarray(config["test_weights"], dtype=np.float64)
-        self.validation_weights = PolicyValidation(n_validation_weights).weights(self.test_weights.shape[1], self.seed)
+        if not len(self.record):
+            raise ValueError(f"{run_dir} holds no policies")
+        if self.test_weights.ndim != 2 or self.test_weights.shape[1] != self.record.reward_dim:
+            shape, d = self.test_weights.shape, self.record.reward_dim
+            raise ValueError(f"{run_dir}: test weights of shape {shape} for policies of {d} objectives")
+        self.ccs_only = config.get("gpi_set") == "ccs"
+        self.validation_episodes = validation.episodes
+        self.validation_weights = validation.weights(self.record.reward_dim, self.seed)
         self._scores: dict[tuple[tuple[int, ...], str], float] = {}
 
     def of_iteration(self, iteration: int) -> list[int]:
         """The indices of the candidates made in ``iteration`` (numbered from 1)."""
         return [i for i, info in enumerate(self.record.infos) if info.iteration == iteration]
 
-    def validation(self, members: Iterable[int]) -> float:
-        """GPI over ``members`` on the validation weights, as validation scores it."""
-        return self._score(members, self.validation_weights, 1, "validation")
+    def validation_score(self, members: list[int]) -> float:
+        """GPI over ``members`` (in Π's order) on the validation weights, as validation scores it."""
+        return self._score(members, self.validation_weights, self.validation_episodes, "validation")
 
-    def test(self, members: Iterable[int]) -> float:
-        """GPI over ``members`` on the test weights, as the run's evaluation scores it."""
+    def test_score(self, members: list[int]) -> float:
+        """GPI over ``members`` (or their CCS, as the run's) on the test weights, as the run's evaluation scores it."""
         return self._score(members, self.test_weights, self.test_episodes, "eval")
 
-    def _score(self, members: Iterable[int], weights: np.ndarray, episodes: int, purpose: str) -> float:
+    def _score(self, members: list[int], weights: np.ndarray, episodes: int, purpose: str) -> float:
         key = (tuple(members), purpose)
         if key not in self._scores:
-            policy_set = self.record.subset(key[0])  # in Π's order: GPI breaks ties by it
+            policy_set = self.record.subset(members)
+            if purpose == "eval" and self.ccs_only:
+                policy_set = policy_set.ccs_policies()
             seeds = [derive_seed(self.seed, purpose, i) for i in range(len(weights))]
             returns = [
                 run_episodes(self.env, policy_set.joint_policy(w), episodes, self.gamma, seed)
@@ -81,24 +98,25 @@ class Candidates:
 
 def admit(candidates: Candidates, members: list[int], new: list[int], together: bool) -> list[int]:
     """Π after the iteration's ``new`` policies were tried one by one (then, with ``together``, those left out)."""
+    score = candidates.validation_score
     left_out = []
     for index in new:
-        if not members or candidates.validation(members + [index]) >= candidates.validation(members):
+        if not members or score(members + [index]) >= score(members):
             members = members + [index]
         else:
             left_out.append(index)
-    if together and len(left_out) > 1 and candidates.validation(members + left_out) >= candidates.validation(members):
+    if together and len(left_out) > 1 and score(members + left_out) >= score(members):
         members = members + left_out
     return members
 
 
 def recall(candidates: Candidates, members: list[int], iteration: int) -> list[int]:
     """Π after adding, while GPI does strictly better, the candidate so far with which it does best."""
-    made = [i for i, info in enumerate(candidates.record.infos) if info.iteration <= iteration]
-    while rest := [i for i in made if i not in members]:
-        scores = [candidates.validation(members + [i]) for i in rest]
+    so_far = [i for i, info in enumerate(candidates.record.infos) if info.iteration <= iteration]
+    while rest := [i for i in so_far if i not in members]:
+        scores = [candidates.validation_score(members + [i]) for i in rest]
         best = int(np.argmax(scores))
-        if scores[best] <= candidates.validation(members):
+        if scores[best] <= candidates.validation_score(members):
             break
         members = members + [rest[best]]
     return members
@@ -107,9 +125,9 @@ def recall(candidates: Candidates, members: list[int], iteration: int) -> list[i
 def prune(candidates: Candidates, members: list[int]) -> list[int]:
     """Π after retiring, while GPI does strictly better without it, the policy without which it does best."""
     while len(members) > 1:
-        scores = [candidates.validation(members[:i] + members[i + 1 :]) for i in range(len(members))]
+        scores = [candidates.validation_score(members[:i] + members[i + 1 :]) for i in range(len(members))]
         worst = int(np.argmax(scores))
-        if scores[worst] <= candidates.validation(members):
+        if scores[worst] <= candidates.validation_score(members):
             break
         members = members[:worst] + members[worst + 1 :]
     return members
@@ -130,24 +148,34 @@ def replay(candidates: Candidates, together: bool, recalling: bool, pruning: boo
 
 
 def load(args: argparse.Namespace) -> tuple[Candidates, bool, bool]:
-    """The run's candidates and the rules to replay (the options given, else the domain's).
+    """
+    The run's candidates and the rules to replay (the options given, else the domain's).
 
-    :raises ValueError: not a run that kept every candidate, or no validation weights
-    :raises UsageError: a run of a domain that is not installed
+    :raises ValueError: not a run whose candidates are those of a validated run, or no validation weights
+    :raises UsageError: a run of a domain that is not installed, or an env that refuses the run's settings
     """
     run_dir = RunDirectory(args.run_dir)
-    config = run_dir.read_config(required=("domain", "seed", "test_weights", "env_kwargs", "learner_kwargs"))
-    if config.get("validation_weights") != 0 or config.get("prune"):
+    required = ("domain", "algorithm", "seed", "test_weights", "env_kwargs", "learner_kwargs", "eval_episodes")
+    config = {**SETTING_DEFAULTS, **run_dir.read_config(required=required)}
+    if config["algorithm"] == "fixed":
+        raise ValueError(f"{args.run_dir} is a run of fixed weights: its agents act by their own policies")
+    if config["validation_weights"] or config["prune"]:
         raise ValueError(f"{args.run_dir} was trained with validation: replay needs --validation-weights 0 --no-prune")
-    if config.get("gpi_set", "all") != "all":
-        raise ValueError(f"{args.run_dir} acts by GPI over its CCS: validation scores GPI over all of Π")
+    if config.get("transfer") or config["gpi_behaviour"] or config.get("value_mode") == "gpi":
+        raise ValueError(f"{args.run_dir} trained with Π in the loop (transfer, GPI behaviour or GPI values): "
+                         "validation would have changed its candidates")  # fmt: skip
     preset = load_domain(config["domain"])
     n_weights = preset.validation_weights if args.validation_weights is None else args.validation_weights
     if n_weights < 1:
         raise ValueError(f"validation needs validation weights: --validation-weights N with N > 0, got {n_weights}")
     together = preset.admit_together if args.admit_together is None else args.admit_together
     pruning = preset.prune if args.prune is None else args.prune
-    return Candidates(run_dir, n_weights), together, pruning
+    env = preset.build_env(config["env_kwargs"])
+    try:
+        return Candidates(run_dir, config, env, PolicyValidation(n_weights)), together, pruning
+    except ValueError:
+        env.close()
+        raise
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -163,14 +191,17 @@ def main(argv: list[str] | None = None) -> None:
         candidates, together, pruning = load(args)
     except (ValueError, UsageError) as error:
         parser.error(str(error))
-    history = replay(candidates, together, args.recall, pruning)
-    for iteration, members in enumerate(history, start=1):
-        print(f"iteration {iteration}: |Π|={len(members)} mean w·return (discounted)={candidates.test(members):.4f}")
-    made = [(candidates.record.infos[i].agent, candidates.record.infos[i].iteration) for i in history[-1]]
-    print(f"Π at the end ({len(made)} of {len(candidates.record)} candidates): " + ", ".join(
-        f"{agent}'s of iteration {iteration}" for agent, iteration in made
+    try:
+        history = replay(candidates, together, args.recall, pruning)
+        for iteration, members in enumerate(history, start=1):
+            score = candidates.test_score(members)
+            print(f"iteration {iteration}: |Π|={len(members)} mean w·return (discounted)={score:.4f}")
+    finally:
+        candidates.env.close()
+    final = [candidates.record.infos[i] for i in history[-1]]
+    print(f"Π at the end ({len(final)} of {len(candidates.record)} candidates): " + ", ".join(
+        f"{info.agent}'s of iteration {info.iteration}" for info in final
     ))  # fmt: skip
-    candidates.env.close()
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -39,18 +40,29 @@ def runs(request, tmp_path_factory):
     return validated, kept
 
 
-def test_the_replay_gives_the_validated_runs_curve(example, runs, capsys):
+def replayed(example, capsys, run, *options):
+    example.main([str(run), *options])
+    return capsys.readouterr().out.splitlines()
+
+
+def test_the_replay_gives_the_validated_run(example, runs, capsys):
     validated, kept = runs
-    example.main([str(kept), *RULES])
-    lines = capsys.readouterr().out.splitlines()
     evaluations = json.loads((validated / "evaluation.json").read_text())
     expected = [
         f"iteration {row['iteration']}: |Π|={row['n_policies']} mean w·return (discounted)={row['mean_return']:.4f}"
         for row in evaluations
     ]
-    assert lines[: len(expected)] == expected
+    manifest = json.loads((validated / "policy_set" / "manifest.json").read_text())["policies"]
+    in_pi = [policy for policy in manifest if policy["retired"] is None]
+    members = [f"{policy['agent']}'s of iteration {policy['iteration']}" for policy in in_pi]
+    lines = replayed(example, capsys, kept, *RULES)
+    assert lines[:-1] == expected and lines[-1].endswith("candidates): " + ", ".join(members))
     candidates = json.loads((kept / "evaluation.json").read_text())[-1]["n_policies"]
     assert evaluations[-1]["n_policies"] < candidates  # validation chose: the replay had something to reproduce
+    if any(entry["retired"] is not None for entry in manifest):  # seed 7: a pruned run
+        assert replayed(example, capsys, kept, *RULES, "--no-prune") != lines
+    else:  # seed 31: two policies joined together
+        assert replayed(example, capsys, kept, *RULES, "--no-admit-together") != lines
 
 
 def test_the_replay_takes_the_domains_rules_by_default(example, runs):
@@ -64,16 +76,27 @@ def test_the_replay_takes_the_domains_rules_by_default(example, runs):
 
 
 @pytest.mark.parametrize(
-    ("which", "extra", "message"),
+    ("which", "change", "extra", "message"),
     [
-        ("validated", [], "replay needs --validation-weights 0 --no-prune"),
-        ("kept", ["--validation-weights", "0"], "validation needs validation weights"),
-        ("nowhere", [], "is not a run directory"),
+        ("validated", {}, [], "replay needs --validation-weights 0 --no-prune"),
+        ("kept", {}, ["--validation-weights", "0"], "validation needs validation weights"),
+        ("kept", {"algorithm": "fixed"}, [], "is a run of fixed weights"),
+        ("kept", {"gpi_behaviour": True}, [], "trained with Π in the loop"),
+        ("kept", {"value_mode": "gpi"}, [], "trained with Π in the loop"),
+        ("kept", {"env_kwargs": {"size": 3}}, [], "the four-room env refuses"),
+        ("kept", {"test_weights": [[0.5, 0.5]]}, [], "test weights of shape (1, 2) for policies of 3 objectives"),
+        ("nowhere", None, [], "is not a run directory"),
     ],
 )
-def test_the_replay_refuses_what_it_cannot_replay(example, runs, capsys, which, extra, message):
+def test_the_replay_refuses_what_it_cannot_replay(example, runs, tmp_path, capsys, which, change, extra, message):
     validated, kept = runs
+    run = {"validated": validated, "kept": kept}.get(which, tmp_path / which)
+    if change:
+        run = Path(shutil.copytree(run, tmp_path / "changed"))
+        config = json.loads((run / "run.json").read_text())
+        (run / "run.json").write_text(json.dumps({**config, **change}))
     with pytest.raises(SystemExit) as exit_info:
-        example.main([str({"validated": validated, "kept": kept}.get(which, kept.parent / which)), *extra])
+        example.main([str(run), *extra])
     assert exit_info.value.code == 2
-    assert message in capsys.readouterr().err
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert message in error
