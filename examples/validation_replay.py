@@ -33,9 +33,8 @@ import numpy as np
 from sb3_sfgpi.callbacks import PolicyValidation
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import load_domain
-from sb3_sfgpi.common.rollouts import run_episodes
-from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.evaluation import summarize_test_episodes
+from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
+from sb3_sfgpi.evaluation import gpi_score
 from sb3_sfgpi.masfols import SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
 
@@ -87,13 +86,11 @@ class Candidates:
             policy_set = self.record.subset(members)
             if purpose == "eval" and self.ccs_only:
                 policy_set = policy_set.ccs_policies()
-            seeds = [derive_seed(self.seed, purpose, i) for i in range(len(weights))]
-            returns = [
-                run_episodes(self.env, policy_set.joint_policy(w), episodes, self.gamma, seed)
-                for w, seed in zip(weights, seeds, strict=True)
-            ]
-            self._scores[key] = summarize_test_episodes(weights, returns)[0]["mean_return"]
+            self._scores[key] = gpi_score(policy_set, weights, self._rollout, episodes, self.seed, purpose)
         return self._scores[key]
+
+    def _rollout(self, policy: JointPolicy, episodes: int, seed: int) -> EpisodeReturns:
+        return run_episodes(self.env, policy, episodes, self.gamma, seed=seed)
 
 
 def admit(candidates: Candidates, members: list[int], new: list[int], together: bool) -> list[int]:

@@ -27,7 +27,7 @@ from sb3_sfgpi.common.metrics import hypervolume
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights, validate_weights
-from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, summarize_test_episodes
+from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, gpi_score, summarize_test_episodes
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
@@ -387,15 +387,9 @@ class OLSCallback(BaseCallback):
 
     def _validation_score_of(self, policy_set: GPIPolicy) -> float:
         """GPI over ``policy_set`` on the validation weights: mean over weights and agents of the discounted return."""
-        runner = self.model
-        weights = self.validation.weights(runner.reward_dim, runner.seed)
-        returns = [
-            runner.rollout(
-                policy_set.joint_policy(w), self.validation.episodes, derive_seed(runner.seed, "validation", i)
-            )
-            for i, w in enumerate(weights)
-        ]
-        return summarize_test_episodes(weights, returns)[0]["mean_return"]
+        runner, validation = self.model, self.validation
+        weights = validation.weights(runner.reward_dim, runner.seed)
+        return gpi_score(policy_set, weights, runner.rollout, validation.episodes, runner.seed, "validation")
 
     # --- GPI evaluation ---------------------------------------------------------------------------------------------
     def _evaluate_gpi(self) -> dict[str, Any]:

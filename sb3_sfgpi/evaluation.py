@@ -26,6 +26,7 @@ from pettingzoo import ParallelEnv
 from sb3_sfgpi.common.metrics import expected_utility
 from sb3_sfgpi.common.parallel_wrappers import flattened
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
+from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.serialization import jsonable
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
 
@@ -292,3 +293,26 @@ def summarize_test_episodes(
         "expected_utility": expected_utility(weights, disc.mean(axis=1)),
     }
     return metrics, details
+
+
+def gpi_score(
+    policy_set: GPIPolicy,
+    weights: np.ndarray,
+    rollout: Callable[[JointPolicy, int, int], EpisodeReturns],
+    episodes: int,
+    seed: int,
+    purpose: str,
+) -> float:
+    """
+    GPI over ``policy_set`` at every weight, all agents acting by it: the mean over weights and agents of the
+    discounted w·return (``mean_return`` of :func:`summarize_test_episodes`; what policy validation compares).
+
+    :param rollout: runs a joint policy for some episodes from a seed (:meth:`MultiAgentRunner.rollout`)
+    :param episodes: episodes per weight
+    :param seed: the run's seed: the episodes of weight ``i`` start from ``derive_seed(seed, purpose, i)``
+    :param purpose: what the episodes are for (``"validation"``, ``"eval"``)
+    """
+    returns = [
+        rollout(policy_set.joint_policy(w), episodes, derive_seed(seed, purpose, i)) for i, w in enumerate(weights)
+    ]
+    return summarize_test_episodes(weights, returns)[0]["mean_return"]
