@@ -2,24 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
+from example_scripts import load_example
 
 from sb3_sfgpi.cli import main
 
-EXAMPLE = Path(__file__).parents[1] / "examples" / "learner_snapshots.py"
 W = ["0.2", "0.3", "0.5"]
 
 
 @pytest.fixture(scope="module")
 def example():
-    spec = importlib.util.spec_from_file_location("learner_snapshots", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_example("learner_snapshots")
 
 
 def test_the_last_snapshot_is_the_trained_learners(example, tmp_path, capsys):

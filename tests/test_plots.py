@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from example_scripts import load_example
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -16,8 +15,6 @@ from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.compare import merge_comparisons
 from sb3_sfgpi.cli.plot import final_test_returns, own_weight_return
 from sb3_sfgpi.run_directory import RunDirectory
-
-EXAMPLES = Path(__file__).parents[1] / "examples"
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 STEP_METRICS = [["vehicle_wait_total", "vehicle waiting time [s]"], ["pedestrian_wait_total", "pedestrian wait [s]"]]
@@ -164,9 +161,7 @@ def test_final_test_returns_average_the_agents_and_own_weight_return_reads_the_r
 
 
 def test_the_four_room_example_prints_gpi_beside_the_a_priori_learners_per_weight(tmp_path, capsys):
-    spec = importlib.util.spec_from_file_location("four_room_example", EXAMPLES / "four_room.py")
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = load_example("four_room")
     gpi = [write_fixed_run(tmp_path / f"g{s}", [0.5, 0.5], s, ([r, r], [r, r])) for s, r in ((0, 1.0), (1, 3.0))]
     apriori = [write_fixed_run(tmp_path / f"f{s}", [0.5, 0.5], s, ([1.0, 1.0], [1.0, 1.0])) for s in (0, 1)]
     example.print_per_weight([run.path for run in gpi], [run.path for run in apriori], "random")

@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
+from example_scripts import load_example
 
-_SPEC = importlib.util.spec_from_file_location("traffic_example", Path(__file__).parents[1] / "examples" / "traffic.py")
-traffic_example = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(traffic_example)
+traffic_example = load_example("traffic")
 
 VEH, PED = "vehicle_waiting_time_mean", "pedestrian_waiting_time_mean"
 

@@ -3,27 +3,23 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import shutil
 from pathlib import Path
 
 import pytest
+from example_scripts import load_example
 
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.presets import load_domain
 
-EXAMPLE = Path(__file__).parents[1] / "examples" / "validation_replay.py"
 TRAIN = ["train", "four-room", "--iterations", "4", "--steps-per-iteration", "400", "--n-test-weights", "4"]
 RULES = ["--validation-weights", "6", "--prune", "--admit-together"]
 
 
 @pytest.fixture(scope="module")
 def example():
-    spec = importlib.util.spec_from_file_location("validation_replay", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_example("validation_replay")
 
 
 # seeds whose validated runs use every rule the replay copies (found by replaying variants of the rules over them):
