@@ -80,25 +80,31 @@ def scored_snapshots(args: argparse.Namespace, preset: DomainPreset) -> list[dic
         env.close()
         raise UsageError(str(error)) from error
     snapshots = Snapshots(args.every)
-    model.learn(max_iterations=1, callback=snapshots)
     rows = []
-    for steps, states in snapshots.taken:
-        for name, state in states.items():
-            model.runner.learners[name].policy.sf_net.load_state_dict(state)
-        rows.append({
-            "steps": steps,
-            "test": score(model.runner, w, args.test_seed, args.episodes, preset.episode_metrics),
-            "selection": score(model.runner, w, args.selection_seed, args.episodes, preset.episode_metrics),
-        })  # fmt: skip
-        print(snapshot_line(rows[-1]), flush=True)
-    model.close()
+    try:
+        model.learn(max_iterations=1, callback=snapshots)
+        for steps, states in snapshots.taken:
+            for name, state in states.items():
+                model.runner.learners[name].policy.sf_net.load_state_dict(state)
+            rows.append({
+                "steps": steps,
+                "test": score(model.runner, w, args.test_seed, args.episodes, preset.episode_metrics),
+                "selection": score(model.runner, w, args.selection_seed, args.episodes, preset.episode_metrics),
+            })  # fmt: skip
+            print(snapshot_line(rows[-1]), flush=True)
+    finally:
+        model.close()
     return rows
+
+
+def scores_text(scores: dict[str, float]) -> str:
+    """``name=value`` for each score, on one line."""
+    return " ".join(f"{name}={value:.4f}" for name, value in scores.items())
 
 
 def snapshot_line(row: dict[str, Any]) -> str:
     """One snapshot's scores on one line."""
-    scores = (" ".join(f"{key}={value:.4f}" for key, value in row[part].items()) for part in ("test", "selection"))
-    return f"steps {row['steps']}: test {next(scores)} | selection {next(scores)}"
+    return f"steps {row['steps']}: test {scores_text(row['test'])} | selection {scores_text(row['selection'])}"
 
 
 def kept(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -138,7 +144,7 @@ def main(argv: list[str] | None = None) -> None:
     except UsageError as error:
         parser.error(str(error))
     for rule, row in kept(rows).items():
-        print(f"{rule}: steps {row['steps']}, test " + " ".join(f"{k}={v:.4f}" for k, v in row["test"].items()))
+        print(f"{rule}: steps {row['steps']}, test {scores_text(row['test'])}")
     if args.out:
         with open(args.out, "w") as file:
             json.dump(rows, file, indent=1)
