@@ -243,6 +243,19 @@ def test_policies_that_are_worse_together_stay_out(capsys):
     assert callback._gpi_validation_score() == pytest.approx(validation_score(callback.model, callback.policy_set))
 
 
+def test_policies_that_tie_together_join_together():
+    # each alone leads GPI to a worse action (s0: C; s1: C); together each outbids the other where it leads to
+    # FIRST's action (s0: A, s1: B): GPI takes FIRST's actions everywhere and does exactly as well as without them
+    ties = (promising({0: (C, 20), 1: (B, 40)}), promising({0: (A, 30), 1: (C, 30)}))
+    tables = {("agent_0", 0): FIRST, ("agent_1", 0): FIRST, ("agent_0", 1): ties[0], ("agent_1", 1): ties[1]}
+    callback = run(4, iterations=2, together=True, factory=frozen_factory(tables))
+    runner, policy_set = callback.model, callback.policy_set
+    first, *alone = (validation_score(runner, policy_set.subset(members)) for members in ([0], [0, 1], [0, 2]))
+    assert max(alone) < first == validation_score(runner, policy_set)  # a tie: "no worse" admits them
+    assert [(i.agent, i.iteration) for i in policy_set.infos] == [("agent_0", 1), ("agent_0", 2), ("agent_1", 2)]
+    assert len(callback.record) == 3
+
+
 def test_admitting_together_needs_validation_weights():
     with pytest.raises(ValueError, match="n_weights must be positive"):
         PolicyValidation(0, together=True)
