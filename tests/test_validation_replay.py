@@ -71,6 +71,28 @@ def test_the_replay_takes_the_domains_rules_by_default(example, runs):
     candidates.env.close()
 
 
+class ScoredSets:
+    """GPI's validation score given for each set of candidates: what the replay's rules read of the candidates."""
+
+    def __init__(self, scores: dict[tuple[int, ...], float]):
+        self.scores = scores
+
+    def validation_score(self, members: list[int]) -> float:
+        return self.scores[tuple(sorted(members))]
+
+
+@pytest.mark.parametrize(
+    ("with_both", "together", "one_by_one"),
+    [(1.0, [0, 1, 2], [0]), (0.9, [0], [0])],  # a tie with Π joins ("no worse", as PolicyValidation); lower stays out
+)
+def test_the_replay_admits_left_out_policies_that_tie_together(example, with_both, together, one_by_one):
+    scores = ScoredSets({(0,): 1.0, (0, 1): 0.8, (0, 2): 0.7, (0, 1, 2): with_both})  # 1 and 2 each lower GPI alone
+    assert example.admit(scores, [0], [1, 2], together=True) == together
+    assert example.admit(scores, [0], [1, 2], together=False) == one_by_one
+    one_tie = ScoredSets({(0,): 1.0, (0, 1): 1.0, (0, 1, 2): 0.9})  # a tie one by one joins; 2 alone: nothing together
+    assert example.admit(one_tie, [0], [1, 2], together=True) == [0, 1]
+
+
 @pytest.mark.parametrize(
     ("which", "change", "extra", "message"),
     [
