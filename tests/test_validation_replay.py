@@ -89,7 +89,10 @@ def test_the_replay_admits_left_out_policies_that_tie_together(example, with_bot
     scores = ScoredSets({(0,): 1.0, (0, 1): 0.8, (0, 2): 0.7, (0, 1, 2): with_both})  # 1 and 2 each lower GPI alone
     assert example.admit(scores, [0], [1, 2], together=True) == together
     assert example.admit(scores, [0], [1, 2], together=False) == one_by_one
-    one_tie = ScoredSets({(0,): 1.0, (0, 1): 1.0, (0, 1, 2): 0.9})  # a tie one by one joins; 2 alone: nothing together
+
+
+def test_the_replay_admits_a_policy_that_ties_one_by_one(example):
+    one_tie = ScoredSets({(0,): 1.0, (0, 1): 1.0, (0, 1, 2): 0.9})  # 1 ties and joins; 2 alone: nothing together
     assert example.admit(one_tie, [0], [1, 2], together=True) == [0, 1]
 
 
