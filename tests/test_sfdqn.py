@@ -22,6 +22,7 @@ from momdp import (
     successor_features,
 )
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
 
 from sb3_sfgpi.common.vec_env import MODummyVecEnv, MOMonitor
@@ -162,6 +163,22 @@ def test_one_train_step_is_the_tabular_sf_update(
         np.testing.assert_array_equal(
             model.policy.sf_net_target.table.weight.detach().numpy().reshape(N_STATES, 3, 2), target
         )
+
+
+def test_a_lin_learning_rate_falls_linearly_to_zero_over_learn(make_tabular_sfdqn):
+    """``learning_rate="lin_X"`` (RL Zoo's notation): the rate the updates use is X times the progress remaining."""
+    rates = []
+
+    class Record(BaseCallback):
+        def _on_step(self) -> bool:
+            rates.append((self.model._current_progress_remaining, self.model.policy.optimizer.param_groups[0]["lr"]))
+            return True
+
+    model = make_tabular_sfdqn(learning_rate="lin_0.4", learning_starts=0)
+    model.learn(200, callback=Record())
+    progress, lr = np.array(rates).T
+    np.testing.assert_allclose(lr, 0.4 * progress, atol=1e-12)
+    assert lr[0] == pytest.approx(0.4) and lr[-1] == pytest.approx(0.4 / 200)  # from X to 0 over the 200 steps
 
 
 def test_time_limit_truncation_is_stored_as_a_bootstrapping_transition():

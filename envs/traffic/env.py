@@ -84,7 +84,8 @@ class TrafficSignalEnv(ParallelEnv):
 
     Observation of an agent (float32, all entries in [0, 1]), Eq. 22::
 
-        [rho_0 .. rho_{G-1}, tau, density_1 .. density_L, queue_1 .. queue_L(, approach_1 .. approach_V)]
+        [rho_0 .. rho_{G-1}, tau, density_1 .. density_L, queue_1 .. queue_L
+         (, approach_1 .. approach_V)(, wait_1 .. wait_L)]
 
     * ``rho``: one-hot of the green phase shown (during yellow: the green that comes next), over the
       ``G`` green phases of the light's static program; in the default network phase 0 = N-S vehicles
@@ -95,7 +96,9 @@ class TrafficSignalEnv(ParallelEnv):
       (vehicles below 0.1 m/s, persons standing) divided by the lane's capacity, clipped to 1;
     * with ``approach_zone > 0`` (not in Eq. 22), for each of the ``V`` vehicle lanes the moving vehicles
       (0.1 m/s or faster) in its last ``approach_zone`` metres before the stop line, divided by the capacity of that
-      stretch, clipped to 1: what the detectors of an actuated program see.
+      stretch, clipped to 1: what the detectors of an actuated program see;
+    * with ``observe_waiting`` (not in Eq. 22), for each incoming lane the longest waiting time at the intersection
+      of a vehicle or person on it, divided by ``max_green`` and clipped to 1: what the waiting-time rewards count.
 
     Actions (``action_mode="change"``, the paper's): ``Discrete(2)``, 0 keep, 1 change to the next green
     of the cycle; (``"phase"``, sumo-rl's): ``Discrete(G)``, the green to show. A change before
@@ -132,6 +135,8 @@ class TrafficSignalEnv(ParallelEnv):
         decision grid that does not fall on it).
     :param approach_zone: length [m] of the stretch before each vehicle lane's stop line whose moving vehicles are
         observed (one more feature per vehicle lane, see above); 0 (default): Eq. 22's observation.
+    :param observe_waiting: add each incoming lane's longest wait to the observation (one more feature per lane,
+        see above); ``False`` (default): Eq. 22's observation.
     :param objectives: names from :data:`~.objectives.MENU`, one reward component each, in order
         (``"pedestrian_waiting"`` needs a network with signalised crossings).
     :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green).
@@ -176,6 +181,7 @@ class TrafficSignalEnv(ParallelEnv):
         max_green: int = 50,
         early_change: str = "ignore",
         approach_zone: float = 0.0,
+        observe_waiting: bool = False,
         objectives: Sequence[str] = DEFAULT_OBJECTIVES,
         action_mode: str = "change",
         signal_control: str = "agent",
@@ -213,6 +219,9 @@ class TrafficSignalEnv(ParallelEnv):
         ):
             raise ValueError(f"approach_zone must be a number of metres >= 0, got {approach_zone!r}")
         self.approach_zone = float(approach_zone)
+        if not isinstance(observe_waiting, (bool, np.bool_)):
+            raise ValueError(f"observe_waiting must be True or False, got {observe_waiting!r}")
+        self.observe_waiting = bool(observe_waiting)
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         self.objectives = select_objectives(objectives)
@@ -254,7 +263,10 @@ class TrafficSignalEnv(ParallelEnv):
         self.agents: list[str] = []
         n_greens = {a: len(self._programs[a].greens) for a in self.possible_agents}
         n_features = {
-            a: n_greens[a] + 1 + 2 * lay.n_lanes + (len(lay.vehicle_lanes) if self.approach_zone else 0)
+            a: n_greens[a]
+            + 1
+            + (3 if self.observe_waiting else 2) * lay.n_lanes
+            + (len(lay.vehicle_lanes) if self.approach_zone else 0)
             for a, lay in self.layouts.items()
         }
         self.observation_spaces = {
@@ -540,7 +552,10 @@ class TrafficSignalEnv(ParallelEnv):
         dens, queue = self._monitors[i].lane_features()
         vec = [0.0] * len(self._programs[self.possible_agents[i]].greens) + [tau]
         vec[green] = 1.0
-        return np.array(vec + dens + queue + self._monitors[i].approaching(), dtype=np.float32)
+        features = vec + dens + queue + self._monitors[i].approaching()
+        if self.observe_waiting:
+            features += [min(1.0, w / self.max_green) for w in self._monitors[i].longest_waits()]
+        return np.array(features, dtype=np.float32)
 
     def _info(self, i: int) -> dict[str, Any]:
         last = self._last[i]

@@ -23,6 +23,11 @@ Approaching vehicles
     With ``approach_zone > 0``, the moving vehicles (0.1 m/s or faster) in the last ``approach_zone`` metres of
     every incoming vehicle lane before its stop line: what the detectors of an actuated program see.
 
+Longest waits
+    :meth:`longest_waits`: per incoming lane (vehicle lanes, then the pedestrian approach edges) the longest
+    waiting time at this intersection of a vehicle or person on it now: what the waiting-time rewards count and
+    densities and queues do not show (a vehicle queued for 2 s and one queued for 40 s look alike there).
+
 Queue and emissions
     The halting vehicles (below 0.1 m/s) on the incoming lanes at the decision; with ``emissions=True``
     the CO2 emitted on the incoming lanes (SUMO's ``lane.getCO2Emission``, mg per simulated second),
@@ -213,3 +218,18 @@ class IntersectionMonitor:
             min(1.0, sum(position(v) >= start and speed(v) >= 0.1 for v in self._lane_vehicles(lane)) * inv)
             for lane, start in self._zones
         ]
+
+    def longest_waits(self) -> list[float]:
+        """The longest waiting time [s] at this intersection among the vehicles, then the persons, on each incoming
+        lane (call after :meth:`track` of the current second; 0 for an empty lane).
+
+        :return: one number per lane of ``layout.vehicle_lanes``, then per pedestrian approach edge.
+        """
+        acc, offset = self._acc_wait, self._veh_offset
+        vehicles = [
+            max((acc(v) - offset.get(v, acc(v)) for v in self._lane_vehicles(lane)), default=0.0)
+            for lane, _ in self._veh_lanes
+        ]
+        pacc = self._ped_acc
+        persons = [max((pacc.get(p, 0.0) for p in ids), default=0.0) for ids in self._ped_on]
+        return vehicles + persons

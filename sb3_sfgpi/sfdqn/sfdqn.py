@@ -34,6 +34,25 @@ SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 SETTLE_SWEEPS = 10_000
 
 
+def learning_rate_schedule(learning_rate: float | str | Schedule) -> float | Schedule:
+    """
+    The learning rate as SB3 takes it: a number or a schedule as given, and ``"lin_X"`` (RL Zoo's notation, as a
+    JSON setting can write it) as the schedule falling linearly from ``X`` at the start of :meth:`SFDQN.learn` to 0 at
+    its end.
+
+    :raises ValueError: a string not of the form ``"lin_X"`` with ``X`` a finite number >= 0
+    """
+    if not isinstance(learning_rate, str):
+        return learning_rate
+    try:
+        start = float(learning_rate.removeprefix("lin_")) if learning_rate.startswith("lin_") else math.nan
+    except ValueError:
+        start = math.nan
+    if not (math.isfinite(start) and start >= 0):
+        raise ValueError(f"learning_rate must be a number >= 0 or a schedule ('lin_X', X >= 0), got {learning_rate!r}")
+    return LinearSchedule(start, 0.0, 1.0)
+
+
 def _check_options(
     learning_rate: float | Schedule,
     gamma: float,
@@ -87,7 +106,8 @@ class SFDQN(OffPolicyAlgorithm):
     :param policy: The policy model to use (``"MlpPolicy"``, ``"TabularPolicy"``, or a class)
     :param env: The environment to learn from (if registered in Gym, can be str)
     :param weights: Preference weights ``w`` (length ``d``); ``None`` for equal weights
-    :param learning_rate: The learning rate (``α`` of the tabular policy), constant or a schedule
+    :param learning_rate: The learning rate (``α`` of the tabular policy), constant or a schedule; ``"lin_X"``: from
+        ``X`` linearly down to 0 over each call of :meth:`learn` (:func:`learning_rate_schedule`)
     :param buffer_size: Size of the replay buffer
     :param learning_starts: How many steps of the model to collect transitions for before learning starts
     :param batch_size: Minibatch size for each gradient update
@@ -138,7 +158,7 @@ class SFDQN(OffPolicyAlgorithm):
         policy: str | type[SFDQNPolicy],
         env: GymEnv | str | None,
         weights: np.ndarray | list[float] | None = None,
-        learning_rate: float | Schedule = 1e-4,
+        learning_rate: float | str | Schedule = 1e-4,
         buffer_size: int = 1_000_000,
         learning_starts: int = 100,
         batch_size: int = 32,
@@ -167,6 +187,7 @@ class SFDQN(OffPolicyAlgorithm):
         _init_setup_model: bool = True,
     ) -> None:
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
+        learning_rate = learning_rate_schedule(learning_rate)
         _check_options(
             learning_rate,
             gamma,
