@@ -14,7 +14,9 @@ from sfgpi_envs.domains import four_room
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import DomainPreset
+from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights, same_weight
+from sb3_sfgpi.gpi import GPIPolicy
 
 TRAIN = ["train", "four-room", "--iterations", "2", "--steps-per-iteration", "150", "--no-progress", "--seed", "1"]
 
@@ -90,6 +92,29 @@ def test_evaluate_on_random_weights_prints_the_mean_of_their_w_returns(run_dir, 
     assert line.split("mean over agents) ")[1].split(" ± ")[0] == f"{np.mean(values):.4f}"
 
 
+def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys):
+    """``--members``: GPI's mean w·return, then one line per policy of the set acting alone, each the return of that
+    policy run by every agent on the same episodes."""
+    w, seed = np.array([0.2, 0.3, 0.5]), 3
+    argv = ["evaluate", str(run_dir), "--w", *map(str, w), "--episodes", "2", "--seed", str(seed), "--members"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out.splitlines()
+    per_agent = [float(row.rsplit(" ", 1)[1]) for row in out if ": return [" in row]
+    gpi = [row for row in out if row.startswith("  GPI: ")]
+    assert len(gpi) == 1 and float(gpi[0].rsplit(" ", 1)[1]) == pytest.approx(np.mean(per_agent), abs=1e-4)
+    alone = [float(row.rsplit(" ", 1)[1]) for row in out if row.startswith("  alone: ")]
+    config = json.loads((run_dir / "run.json").read_text())
+    policy_set = GPIPolicy.load(run_dir / "policy_set").members()
+    if config.get("gpi_set", "all") == "ccs":
+        policy_set = policy_set.ccs_policies()
+    assert len(alone) == len(policy_set) >= 2
+    env = four_room()["make_env"](**config["env_kwargs"])
+    for index, printed in enumerate(alone):
+        result = run_episodes(env, policy_set.subset([index]).joint_policy(w), 2, 0.95, seed=seed)
+        expected = np.mean([w @ result.mean_discounted(agent) for agent in result.discounted])
+        assert printed == pytest.approx(expected, abs=1e-4)
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
@@ -99,6 +124,7 @@ def test_evaluate_on_random_weights_prints_the_mean_of_their_w_returns(run_dir, 
         (["evaluate", "NOT_A_RUN", "--w", "1", "0", "0"], "not a run directory"),
         (["evaluate", "RUN", "--w", "1", "0", "0", "--seed", "-1"], "--seed must be 0 or more"),
         (["evaluate", "RUN", "--random-weights", "0"], "--random-weights must be positive, got 0"),
+        (["evaluate", "RUN", "--random-weights", "2", "--members"], "--members needs --w"),
         (["train", "no-such-domain"], "unknown domain"),
         (["plot", "NOT_A_RUN", "-o", "x.png"], "not a run directory"),
     ],

@@ -34,6 +34,11 @@ def add_parser(sub: Any) -> None:
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--device", default="cpu", help="where the policy set acts: cpu, auto, cuda, cuda:N")
     evaluate.add_argument("--gpi-set", choices=["all", "ccs"], help="GPI over all of Π or its CCS (default: the run's)")
+    evaluate.add_argument(
+        "--members",
+        action="store_true",
+        help="with --w: also run each policy of the GPI set alone (does GPI beat its best member?)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
     if args.random_weights is not None and args.random_weights < 1:
         raise UsageError(f"--random-weights must be positive, got {args.random_weights}")
     w = None if args.w is None else validate_weights(args.w, policy_set.reward_dim, "--w")
+    if args.members and w is None:
+        raise UsageError("--members needs --w (each policy is run alone for those weights)")
     if args.episodes < 1:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
     if args.seed < 0:
@@ -61,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
             _print_random_weights(env, policy_set, args.random_weights, args.episodes, gamma, args.seed)
         else:
             _print_one_weight(env, policy_set, w, preset, config, args.episodes, gamma, args.seed)
+            if args.members:
+                _print_members(env, policy_set, w, args.episodes, gamma, args.seed)
     finally:
         env.close()
     return 0
@@ -94,12 +103,28 @@ def _print_one_weight(
             print(f"  {label}: {metrics[key]['mean']:.2f} ± {metrics[key]['std']:.2f} over episodes")
 
 
+def _mean_scalarized(env: Any, policy_set: GPIPolicy, w: np.ndarray, episodes: int, gamma: float, seed: int) -> float:
+    """w · discounted return of GPI over ``policy_set`` for ``w``, mean over agents and episodes."""
+    result = run_episodes(env, policy_set.joint_policy(w), episodes, gamma, seed=seed)
+    return float(np.mean([w @ result.mean_discounted(agent) for agent in result.discounted]))
+
+
+def _print_members(env: Any, policy_set: GPIPolicy, w: np.ndarray, episodes: int, gamma: float, seed: int) -> None:
+    """GPI's w·return against each policy of its set acting alone for ``w`` (every agent follows it), same episodes."""
+    gpi = _mean_scalarized(env, policy_set, w, episodes, gamma, seed)
+    print(f"  GPI: w·return (discounted, mean over agents) {gpi:.4f}")
+    for index, info in enumerate(policy_set.infos):
+        alone = _mean_scalarized(env, policy_set.subset([index]), w, episodes, gamma, seed)
+        trained = np.round(info.weights, 2).tolist()
+        print(f"  alone: {info.agent}'s policy of iteration {info.iteration} (trained for {trained}) {alone:.4f}")
+
+
 def _print_random_weights(env: Any, policy_set: GPIPolicy, n: int, episodes: int, gamma: float, seed: int) -> None:
     """GPI's w · discounted return (mean over agents) for ``n`` Dirichlet(1) weights of ``seed``: mean ± std."""
-    values = []
-    for w in random_weights(policy_set.reward_dim, n, rng=seed):
-        result = run_episodes(env, policy_set.joint_policy(w), episodes, gamma, seed=seed)
-        values.append(np.mean([w @ result.mean_discounted(agent) for agent in result.discounted]))
+    values = [
+        _mean_scalarized(env, policy_set, w, episodes, gamma, seed)
+        for w in random_weights(policy_set.reward_dim, n, rng=seed)
+    ]
     print(
         f"  {n} Dirichlet(1) weights (seed {seed}): w·return (discounted, γ={gamma}, mean over agents) "
         f"{np.mean(values):.4f} ± {np.std(values):.4f} (std over weights)"
