@@ -227,7 +227,7 @@ class IntersectionMonitor:
         """
         acc, offset = self._acc_wait, self._veh_offset
         vehicles = [
-            max((acc(v) - offset.get(v, acc(v)) for v in self._lane_vehicles(lane)), default=0.0)
+            max((acc(v) - offset[v] for v in self._lane_vehicles(lane) if v in offset), default=0.0)
             for lane, _ in self._veh_lanes
         ]
         pacc = self._ped_acc
