@@ -106,7 +106,7 @@ def _print_one_weight(
 def _mean_scalarized(env: Any, policy_set: GPIPolicy, w: np.ndarray, episodes: int, gamma: float, seed: int) -> float:
     """w · discounted return of GPI over ``policy_set`` for ``w``, mean over agents and episodes."""
     result = run_episodes(env, policy_set.joint_policy(w), episodes, gamma, seed=seed)
-    return float(np.mean([w @ result.mean_discounted(agent) for agent in result.discounted]))
+    return float(w @ result.mean_discounted_over())
 
 
 def _print_members(env: Any, policy_set: GPIPolicy, w: np.ndarray, episodes: int, gamma: float, seed: int) -> None:

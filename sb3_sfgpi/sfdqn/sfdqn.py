@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import numbers
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
@@ -34,27 +35,22 @@ SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 SETTLE_SWEEPS = 10_000
 
 
-def learning_rate_schedule(learning_rate: float | str | Schedule) -> float | Schedule:
+def learning_rate_schedule(learning_rate: float | str | Schedule) -> float | str | Schedule:
     """
-    The learning rate as SB3 takes it: a number or a schedule as given, and ``"lin_X"`` (RL Zoo's notation, as a
-    JSON setting can write it) as the schedule falling linearly from ``X`` at the start of :meth:`SFDQN.learn` to 0 at
-    its end.
-
-    :raises ValueError: a string not of the form ``"lin_X"`` with ``X`` a finite number >= 0
+    ``"lin_X"`` (RL Zoo's notation, as a JSON setting can write it) as the schedule falling linearly from ``X`` at the
+    start of :meth:`SFDQN.learn` to 0 at its end; anything else as given (a malformed string too: the option check
+    refuses it).
     """
-    if not isinstance(learning_rate, str):
-        return learning_rate
-    try:
-        start = float(learning_rate.removeprefix("lin_")) if learning_rate.startswith("lin_") else math.nan
-    except ValueError:
-        start = math.nan
-    if not (math.isfinite(start) and start >= 0):
-        raise ValueError(f"learning_rate must be a number >= 0 or a schedule ('lin_X', X >= 0), got {learning_rate!r}")
-    return LinearSchedule(start, 0.0, 1.0)
+    if isinstance(learning_rate, str) and learning_rate.startswith("lin_"):
+        with contextlib.suppress(ValueError):
+            start = float(learning_rate.removeprefix("lin_"))
+            if math.isfinite(start) and start >= 0:
+                return LinearSchedule(start, 0.0, 1.0)
+    return learning_rate
 
 
 def _check_options(
-    learning_rate: float | Schedule,
+    learning_rate: float | str | Schedule,
     gamma: float,
     batch_size: int,
     n_steps: int,
@@ -67,7 +63,7 @@ def _check_options(
     """Refuse out-of-range options, SB3 options SFDQN does not support and bad planning or optimism options."""
     rate_ok = isinstance(learning_rate, numbers.Real) and math.isfinite(learning_rate) and learning_rate >= 0
     if not (rate_ok or callable(learning_rate)) or isinstance(learning_rate, bool):
-        raise ValueError(f"learning_rate must be a number >= 0 or a schedule, got {learning_rate!r}")
+        raise ValueError(f"learning_rate must be a number >= 0 or a schedule ('lin_X', X >= 0), got {learning_rate!r}")
     if not isinstance(gamma, numbers.Real) or not 0.0 <= gamma <= 1.0:
         raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
     if isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral) or batch_size < 1:
