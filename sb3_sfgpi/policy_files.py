@@ -18,7 +18,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
-from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, observation_radices
+from sb3_sfgpi.sfdqn.networks import MAX_CRITICS, SFNetwork, TabularSFNetwork, observation_radices
 
 _ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
 
@@ -46,8 +46,21 @@ def network_spec(net: nn.Module) -> dict[str, Any]:
             "net_arch": list(net.net_arch),
             "activation_fn": net.activation_fn.__name__,
             "normalize_images": bool(net.normalize_images),
+            "n_critics": net.n_critics,
         }
     raise ValueError(f"not an SF network: {type(net).__name__}")
+
+
+def _n_critics(spec: dict[str, Any]) -> int:
+    """
+    The number of heads of an MLP spec (1 where it does not say: files of versions before ``n_critics``).
+
+    :raises ValueError: not an integer in ``[1, MAX_CRITICS]``
+    """
+    n_critics = spec.get("n_critics", 1)
+    if isinstance(n_critics, bool) or not isinstance(n_critics, int) or not 1 <= n_critics <= MAX_CRITICS:
+        raise ValueError(f"n_critics must be an integer in [1, {MAX_CRITICS}], got {n_critics!r}")
+    return n_critics
 
 
 def build_network(
@@ -74,6 +87,7 @@ def build_network(
             net_arch=[int(n) for n in spec["net_arch"]],
             activation_fn=_ACTIVATIONS[spec["activation_fn"]],
             normalize_images=bool(spec.get("normalize_images", True)),
+            n_critics=_n_critics(spec),
         )
     raise ValueError(f"unknown network kind {spec.get('kind')!r}")
 
@@ -92,7 +106,7 @@ def declared_bytes(
         return int(np.prod(n_values.astype(np.float64))) * outputs * 4
     if spec.get("kind") == "mlp":
         sizes = [spaces.flatdim(observation_space), *[int(n) for n in spec["net_arch"]], outputs]
-        return sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes)) * 4
+        return sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes)) * 4 * _n_critics(spec)
     raise ValueError(f"unknown network kind {spec.get('kind')!r}")
 
 

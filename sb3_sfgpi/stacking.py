@@ -86,7 +86,7 @@ class StackedMLP:
     @staticmethod
     def supports(net: nn.Module) -> bool:
         """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
-        if not isinstance(net, SFNetwork) or not isinstance(net.sf_net, nn.Sequential):
+        if not isinstance(net, SFNetwork) or net.n_critics != 1:
             return False
         extractor = net.features_extractor
         if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import shutil
@@ -197,9 +198,13 @@ def test_an_empty_set_refuses_to_act():
 # --------------------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("kind", ["mlp", "tabular"])
+@pytest.mark.parametrize("kind", ["mlp", "mlp-two-critics", "tabular"])
 def test_save_load_round_trip(tmp_path, kind, make_random_mlp, make_random_tabular):
-    make = make_random_mlp if kind == "mlp" else make_random_tabular
+    make = {
+        "mlp": make_random_mlp,
+        "mlp-two-critics": functools.partial(make_random_mlp, n_critics=2),
+        "tabular": make_random_tabular,
+    }[kind]
     policy_set = GPIPolicy()
     metadata = [
         dict(weights=[0.2, 0.3, 0.5], value=[1.5, -2.0, 3.25], agent="agent_0", iteration=0),
@@ -509,6 +514,7 @@ def test_an_interrupted_save_keeps_the_previous_set_loadable(saved_set, monkeypa
     [
         ({"kind": "tabular"}, spaces.MultiDiscrete([13, 13, 2, 2])),
         ({"kind": "mlp", "net_arch": [64, 32], "activation_fn": "ReLU"}, spaces.Box(-1, 1, shape=(7,))),
+        ({"kind": "mlp", "net_arch": [8], "activation_fn": "Tanh", "n_critics": 3}, spaces.Box(-1, 1, shape=(7,))),
     ],
 )
 def test_the_memory_a_manifest_declares_is_what_its_networks_take(spec, observation_space):

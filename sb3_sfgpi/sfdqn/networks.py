@@ -18,6 +18,8 @@ from torch import nn
 
 #: Largest table :class:`TabularSFNetwork` builds (number of observation values).
 MAX_TABLE_STATES = 50_000_000
+#: Most heads an :class:`SFNetwork` takes (``n_critics``).
+MAX_CRITICS = 16
 
 
 def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
@@ -75,7 +77,13 @@ def argmax_random_ties(q_values: np.ndarray, rng: np.random.Generator | Any = np
 
 class SFNetwork(BasePolicy):
     """
-    MLP successor-feature network.
+    MLP successor-feature network, with one or more heads.
+
+    With ``n_critics > 1`` the network holds that many separate MLPs ("critics", as SB3's TD3 and SAC) on the same
+    features, trained toward the same targets, and ``ψ`` is their element-wise minimum: a pessimistic estimate
+    (as TD3's clipped double Q and GPI-PD's ensemble minimum). For weights ``w >= 0`` (the simplex),
+    ``w · ψ_min <= w · ψ_k`` for every head ``k``, so where the heads disagree (off the data, where one overestimates)
+    GPI trusts the lower one.
 
     :param observation_space: Observation space
     :param action_space: Action space (Discrete)
@@ -85,6 +93,7 @@ class SFNetwork(BasePolicy):
     :param net_arch: Hidden layer sizes
     :param activation_fn: Activation function
     :param normalize_images: Whether to divide images by 255
+    :param n_critics: Number of heads; ``ψ`` is their element-wise minimum
     """
 
     action_space: spaces.Discrete
@@ -99,7 +108,10 @@ class SFNetwork(BasePolicy):
         net_arch: list[int] | None = None,
         activation_fn: type[nn.Module] = nn.ReLU,
         normalize_images: bool = True,
+        n_critics: int = 1,
     ):
+        if isinstance(n_critics, bool) or not isinstance(n_critics, int) or not 1 <= n_critics <= MAX_CRITICS:
+            raise ValueError(f"n_critics must be an integer in [1, {MAX_CRITICS}], got {n_critics!r}")
         super().__init__(
             observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
         )
@@ -108,17 +120,34 @@ class SFNetwork(BasePolicy):
         self.features_dim = features_dim
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
-        self.sf_net = nn.Sequential(
-            *create_mlp(features_dim, self.n_actions * reward_dim, self.net_arch, activation_fn)
+        self.n_critics = n_critics
+        self.sf_net = self._make_head()
+        # the heads beyond the first (none by default: a one-head network keeps the state dict of earlier versions)
+        self.other_critics = nn.ModuleList(self._make_head() for _ in range(n_critics - 1))
+
+    def _make_head(self) -> nn.Sequential:
+        return nn.Sequential(
+            *create_mlp(self.features_dim, self.n_actions * self.reward_dim, self.net_arch, self.activation_fn)
         )
+
+    def forward_heads(self, obs: PyTorchObs) -> th.Tensor:
+        """
+        :param obs: Observation batch
+        :return: ``ψ(s, ·)`` of every head, shape ``(n_critics, batch, n_actions, d)``
+        """
+        features = self.extract_features(obs, self.features_extractor)
+        heads = [self.sf_net(features), *(head(features) for head in self.other_critics)]
+        return th.stack(heads).view(self.n_critics, -1, self.n_actions, self.reward_dim)
 
     def forward(self, obs: PyTorchObs) -> th.Tensor:
         """
         :param obs: Observation batch
-        :return: ``ψ(s, ·)``, shape ``(batch, n_actions, d)``
+        :return: ``ψ(s, ·)``, the element-wise minimum over the heads, shape ``(batch, n_actions, d)``
         """
-        features = self.extract_features(obs, self.features_extractor)
-        return self.sf_net(features).view(-1, self.n_actions, self.reward_dim)
+        if not self.other_critics:
+            features = self.extract_features(obs, self.features_extractor)
+            return self.sf_net(features).view(-1, self.n_actions, self.reward_dim)
+        return self.forward_heads(obs).amin(dim=0)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         raise NotImplementedError("an SF network has no weights: use SFDQNPolicy or GPIPolicy to act")
@@ -131,6 +160,7 @@ class SFNetwork(BasePolicy):
             reward_dim=self.reward_dim,
             activation_fn=self.activation_fn,
             features_extractor=self.features_extractor,
+            n_critics=self.n_critics,
         )
         return data
 

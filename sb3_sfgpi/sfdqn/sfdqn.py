@@ -133,7 +133,8 @@ class SFDQN(OffPolicyAlgorithm):
         optimal values are 1.1–1.8, 1.25 did better than 1.5 and 2)
     :param stats_window_size: Window size for the rollout logging
     :param tensorboard_log: The log location for tensorboard (if None, no logging)
-    :param policy_kwargs: Additional arguments to be passed to the policy on creation
+    :param policy_kwargs: Additional arguments to be passed to the policy on creation (``MlpPolicy``: ``net_arch``,
+        ``activation_fn``, ``n_critics``, ...; ``n_critics=2``: two heads, ``ψ`` their element-wise minimum)
     :param verbose: Verbosity level: 0 for no output, 1 for info messages, 2 for debug messages
     :param seed: Seed for the pseudo random generators
     :param device: Device (cpu, cuda, ...) on which the code should be run. ``"auto"``: the CPU for
