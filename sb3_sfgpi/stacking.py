@@ -62,21 +62,24 @@ class StackedTables:
 
 class StackedMLP:
     """
-    MLP SF networks stacked layer by layer: weights ``(P, in, out)``, biases ``(P, 1, out)``.
+    MLP SF networks stacked layer by layer: weights ``(P·K, in, out)``, biases ``(P·K, 1, out)`` for ``P`` networks of
+    ``K`` heads (``n_critics``) each.
 
     The features extractor has no parameters, so the features are computed once and shared; each ``Linear``
-    of the ``P`` networks is then one ``baddbmm``.
+    of the ``P·K`` heads is then one ``baddbmm``, and a network's ``ψ`` the element-wise minimum of its heads'.
     """
 
     def __init__(self, networks: list[SFNetwork]):
         first = networks[0]
         self.first = first
         self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
+        self.n_critics = first.n_critics
+        heads = [head for net in networks for head in (net.sf_net, *net.other_critics)]  # policy-major
         self.layers: list[tuple[th.Tensor, th.Tensor] | nn.Module] = []
         with th.no_grad():
             for i, module in enumerate(first.sf_net):
                 if isinstance(module, nn.Linear):
-                    linears = [net.sf_net[i] for net in networks]
+                    linears = [head[i] for head in heads]
                     weight = th.stack([lin.weight.transpose(0, 1) for lin in linears]).contiguous()
                     bias = th.stack([lin.bias for lin in linears]).unsqueeze(1)
                     self.layers.append((weight, bias))
@@ -86,13 +89,13 @@ class StackedMLP:
     @staticmethod
     def supports(net: nn.Module) -> bool:
         """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
-        if not isinstance(net, SFNetwork) or net.n_critics != 1:
+        if not isinstance(net, SFNetwork):
             return False
         extractor = net.features_extractor
         if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):
             return False
         allowed = tuple(_ACTIVATIONS.values())
-        for module in net.sf_net:
+        for module in (module for head in (net.sf_net, *net.other_critics) for module in head):
             if isinstance(module, nn.Linear):
                 if module.bias is None:
                     return False
@@ -102,14 +105,16 @@ class StackedMLP:
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         features = self.first.extract_features(obs_tensor, self.first.features_extractor)
-        n_policies = self.n_policies
-        x = features.unsqueeze(0).expand(n_policies, *features.shape)
+        n_policies, n_critics = self.n_policies, self.n_critics
+        x = features.unsqueeze(0).expand(n_policies * n_critics, *features.shape)
         for layer in self.layers:
             if isinstance(layer, tuple):
                 x = th.baddbmm(layer[1], x, layer[0])
             else:
                 x = layer(x)
-        return x.view(n_policies, -1, self.n_actions, self.reward_dim)
+        if n_critics == 1:
+            return x.view(n_policies, -1, self.n_actions, self.reward_dim)
+        return x.view(n_policies, n_critics, -1, self.n_actions, self.reward_dim).amin(dim=1)
 
 
 class StackedVmap:

@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import copy
+import functools
 
 import numpy as np
 import pytest
@@ -29,9 +30,13 @@ from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap
 # --------------------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("kind", ["mlp", "tabular"])
+@pytest.mark.parametrize("kind", ["mlp", "mlp-two-critics", "tabular"])
 def test_stacked_gpi_paths_equal_the_vmap_path(kind, make_random_mlp, make_random_tabular):
-    make = make_random_mlp if kind == "mlp" else make_random_tabular
+    make = {
+        "mlp": make_random_mlp,
+        "mlp-two-critics": functools.partial(make_random_mlp, n_critics=2),
+        "tabular": make_random_tabular,
+    }[kind]
     policy_set = GPIPolicy()
     for seed in range(6):
         policy_set.add(make(seed), weights=[1.0, 1.0, 1.0])
@@ -39,7 +44,7 @@ def test_stacked_gpi_paths_equal_the_vmap_path(kind, make_random_mlp, make_rando
     space.seed(3)
     observations = np.stack([space.sample() for _ in range(17)])
     obs_tensor, _ = policy_set._obs_to_tensor(observations)
-    assert isinstance(policy_set._stack(), StackedMLP if kind == "mlp" else StackedTables)
+    assert isinstance(policy_set._stack(), StackedTables if kind == "tabular" else StackedMLP)
     reference = policy_set._psi_vmap(obs_tensor)
     np.testing.assert_allclose(policy_set.successor_features(observations), reference.numpy(), rtol=1e-6, atol=1e-6)
     for w in ([1.0, 0.0, 0.0], [0.2, 0.3, 0.5]):
