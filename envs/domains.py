@@ -76,32 +76,33 @@ def traffic() -> dict[str, Any]:
 
     Budget: up to ``iterations x steps_per_iteration`` joint steps (5 simulated seconds each) per agent, plus
     after every iteration one value episode per new policy and a GPI episode for each of the 25 test weights
-    (in ``eval_workers`` processes), and the validation of the new policies: about 10-20 minutes on two cores.
-    Three iterations of 8,000 steps rather than six of 4,000 (the same maximum): with 4,000 OLS ended after three or
-    four iterations, well short of the maximum, and the policies for the simplex extrema, trained in the first
-    iteration, are the ones GPI follows at the extreme weights (with 8,000 OLS ends after 2 iterations or runs all
-    3). Measured over 3 seeds (README "Traffic"): GPI's final mean w·return -0.385 +/- 0.023 -> -0.347 +/- 0.024,
-    vehicle waiting at [1, 0] 6.42 -> 5.56 s, pedestrian waiting at [0, 1] 5.66 -> 5.11 s.
+    (in ``eval_workers`` processes), and the validation of the new policies: about 15-30 minutes on two cores.
 
-    Rewards are scaled per objective, vehicles x 0.01 and pedestrians x 0.25. The per-step changes of waiting
-    time are tens of seconds (networks train better on rewards of order one), and the factor 25 between the
-    objectives sets what a weight trades: in seconds, serving pedestrians costs the (many more) vehicles about
-    35 times what the pedestrians gain (short 10 s cycles are nearly optimal for both), so every weight with
-    ``w_ped < 0.97`` would have the same best policy; with the factor 25 the knee of the front is near the
-    middle of the simplex. Episode metrics and infos stay in seconds.
+    Since 2026-11-25 (issue 10; README "Traffic", 3 seeds): each step's reward is minus the waiting spent in it
+    (``objectives=["vehicle_delay", "pedestrian_delay"]``), a green cut short by the minimum green is deferred rather
+    than ignored (``early_change="defer"``), the learning rate falls from 10^-3 to 0 over each iteration
+    (``"lin_0.001"``), and MA-SFOLS trains 2 iterations of 12,000 steps rather than 3 of 8,000 (the same maximum). GPI
+    at [1, 0] keeps vehicles waiting 4.00 s (SUMO's actuated program 4.48 s; the previous preset 5.56 s), pedestrians
+    at [0, 1] 2.47 s (5.11 s), and GPI's w·return is within 5% of the scalarised learners at [0.5, 0.5], [0.4, 0.6]
+    and [0.2, 0.8] (+1.4%, -4.3%, -3.5%). With 3 x 8,000 steps the same configuration kept GPI 9.6% below them at
+    [0.2, 0.8]: the policies trained near that weight had 8,000 steps. Pessimistic SFs (``n_critics=2``) did worse.
+
+    Rewards are scaled per objective, vehicles x 0.01 and pedestrians x 0.025: per-step rewards of order one for the
+    networks, and a factor 2.5 between the objectives that puts the knee of the front near the middle of the simplex
+    (with x 0.25, set for Eq. 24's rewards, the pedestrians outweigh the vehicles at every weight but [1, 0]).
+    Episode metrics and infos stay in seconds.
 
     Values are estimated with each new policy run at all three intersections (``value_mode="shared"``) and GPI
     acts over the policies whose values form the CCS (``gpi_set="ccs"``): dominated policies' SFs only mislead it.
     Π is validated and pruned as in ``four-room`` (``validation_weights``, ``prune``): a policy joins Π only if GPI
-    does no worse with it on 12 validation weights, and leaves it when GPI does better without it (3 seeds, with
-    the previous budget of 6 x 4,000 steps: GPI's final mean w·return -0.451 +/- 0.067 -> -0.385 +/- 0.023; within
-    2.3% of the scalarised learners at their weights, from 3.3-12.5% below; with 3 x 8,000, 13.8-17.4% above them).
-    Validation costs 15 GPI episodes per candidate. Four-Room's ``admit_together`` is off: on those three seeds it
-    tried an iteration's left-out policies together 4 times and kept them out every time (GPI 0.02–0.10 lower).
+    does no worse with it on 12 validation weights, and leaves it when GPI does better without it. Validation costs
+    15 GPI episodes per candidate. Four-Room's ``admit_together`` is off: on the earlier preset's three seeds it tried
+    an iteration's left-out policies together 4 times and kept them out every time (GPI 0.02-0.10 lower).
 
-    Another network: ``--env net_file=NET --env route_file=ROUTES`` (and ``--env 'objectives=["vehicle_waiting",
-    "co2"]'`` where it has no pedestrian crossings); MA-SFOLS needs lights with the same observation and action
-    spaces (the same lanes and green phases).
+    Eq. 24's rewards (the paper's: decreases of the accumulated waiting times): ``--env 'objectives=
+    ["vehicle_waiting", "pedestrian_waiting"]'`` (scaled x 0.01 and x 0.25). Another network: ``--env net_file=NET
+    --env route_file=ROUTES`` (and ``--env 'objectives=["vehicle_delay", "co2"]'`` where it has no pedestrian
+    crossings); MA-SFOLS needs lights with the same observation and action spaces (the same lanes and green phases).
     """
     from sfgpi_envs.traffic import TrafficSignalEnv
 
@@ -112,20 +113,22 @@ def traffic() -> dict[str, Any]:
             "delta_time": 5,
             "min_green": 10,
             "max_green": 50,
+            "objectives": ["vehicle_delay", "pedestrian_delay"],  # minus the waiting spent in each step (see above)
+            "early_change": "defer",  # a change asked before the minimum green is made when it ends
             # vehicles, pedestrians: see above; the other objectives of the menu (chosen with `--env objectives=[...]`)
             # scaled to per-step rewards of the order of the vehicles' on the default network under random actions
             "reward_scale": {
                 "vehicle_waiting": 0.01,
                 "pedestrian_waiting": 0.25,
                 "vehicle_delay": 0.01,
-                "pedestrian_delay": 0.25,
+                "pedestrian_delay": 0.025,
                 "vehicle_queue": 0.1,
                 "co2": 0.005,
             },
         },
         "learner_kwargs": {
             "policy": "MlpPolicy",
-            "learning_rate": 1e-3,
+            "learning_rate": "lin_0.001",  # from 10^-3 linearly to 0 over each iteration
             "gamma": 0.95,
             "buffer_size": 100_000,
             "batch_size": 64,
@@ -137,8 +140,8 @@ def traffic() -> dict[str, Any]:
             "exploration_final_eps": 0.05,
             "policy_kwargs": {"net_arch": [64, 64]},
         },
-        "steps_per_iteration": 8_000,  # 3 x 8,000 rather than 6 x 4,000: longer-trained extrema (see above)
-        "iterations": 3,
+        "steps_per_iteration": 12_000,  # 2 x 12,000 rather than 3 x 8,000: longer-trained policies (see above)
+        "iterations": 2,
         "n_test_weights": 25,
         "value_episodes": 1,
         "value_mode": "shared",  # each new policy run at all three intersections: values comparable across agents
@@ -148,7 +151,7 @@ def traffic() -> dict[str, Any]:
         "eval_episodes": 1,
         "eval_workers": 2,
         # for `sb3-sfgpi compare` and its plots
-        "objectives": ["vehicles", "pedestrians"],  # rewards: decreases of their scaled waiting times
+        "objectives": ["vehicles", "pedestrians"],  # rewards: minus their scaled waiting in each step
         "baselines": {"fixed-time": {"signal_control": "fixed-time"}, "actuated": {"signal_control": "actuated"}},
         "episode_metrics": [
             ["vehicle_waiting_time_mean", "mean vehicle waiting time [s]"],

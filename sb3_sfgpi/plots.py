@@ -301,7 +301,7 @@ def plot_tradeoff(compare: dict[str, Any], output: Path) -> Path:
         first = np.array([r["weights"][0] for r in gpi])
         dots = ax.scatter(pts[:, 0], pts[:, 1], c=first, vmin=0, vmax=1, label="MA-SFOLS + GPI", zorder=2)
         name = (compare.get("objectives") or ["objective 0"])[0]
-        fig.colorbar(dots, ax=ax, label=f"GPI's weight of {name} (w = [w0, 1 - w0] with two objectives)")
+        fig.colorbar(dots, ax=ax, label=f"GPI's weight w0 of {name}")
     markers = iter("s^vD<>p*h")
     for row in compare["rows"]:
         if row["method"] == "gpi":

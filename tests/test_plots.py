@@ -295,7 +295,7 @@ def test_plot_tradeoff_puts_the_two_episode_metrics_on_the_axes(tmp_path, compar
     output = plots.plot_tradeoff(compare, tmp_path / "tradeoff.png")
     assert_png(output)
     ax, colorbar = figures[0]["axes"]  # GPI's points are coloured by their weight
-    assert "weight of vehicles" in colorbar["ylabel"]
+    assert "weight w0 of vehicles" in colorbar["ylabel"]
     assert ax["xlabel"] == EPISODE_METRICS[0][1] and ax["ylabel"] == EPISODE_METRICS[1][1]
     assert ax["legend"] == ["MA-SFOLS + GPI", "scalarized w=[0.5, 0.5]", "fixed-time"]
     gpi = ax["lines"][0][1]  # errorbar's data line (the label is its container's); in the order of w

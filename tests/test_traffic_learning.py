@@ -196,7 +196,7 @@ def test_fixed_weight_learners_compare_and_plots(tmp_path):
     assert main(["plot", str(masfols), "-o", str(figures / "returns.png")]) == 0
     names = sorted(p.name for p in figures.iterdir())
     assert names == [
-        "returns.png", "steps_pedestrians.png", "steps_pedestrians_zoom.png", "steps_vehicles.png",
-        "steps_vehicles_zoom.png", "tradeoff.png", "versus_w0.4-0.6.png",
+        "returns.png", "steps_pedestrian_delay.png", "steps_pedestrian_delay_zoom.png", "steps_vehicle_delay.png",
+        "steps_vehicle_delay_zoom.png", "tradeoff.png", "versus_w0.4-0.6.png",
     ]  # fmt: skip
     assert all((figures / n).read_bytes()[:4] == b"\x89PNG" for n in names)
