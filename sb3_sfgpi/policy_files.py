@@ -18,7 +18,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
-from sb3_sfgpi.sfdqn.networks import MAX_CRITICS, SFNetwork, TabularSFNetwork, observation_radices
+from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, check_n_critics, observation_radices
 
 _ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
 
@@ -57,10 +57,7 @@ def _n_critics(spec: dict[str, Any]) -> int:
 
     :raises ValueError: not an integer in ``[1, MAX_CRITICS]``
     """
-    n_critics = spec.get("n_critics", 1)
-    if isinstance(n_critics, bool) or not isinstance(n_critics, int) or not 1 <= n_critics <= MAX_CRITICS:
-        raise ValueError(f"n_critics must be an integer in [1, {MAX_CRITICS}], got {n_critics!r}")
-    return n_critics
+    return check_n_critics(spec.get("n_critics", 1))
 
 
 def build_network(

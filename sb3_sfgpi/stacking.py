@@ -74,7 +74,7 @@ class StackedMLP:
         self.first = first
         self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
         self.n_critics = first.n_critics
-        heads = [head for net in networks for head in (net.sf_net, *net.other_critics)]  # policy-major
+        heads = [head for net in networks for head in net.heads]  # policy-major
         self.layers: list[tuple[th.Tensor, th.Tensor] | nn.Module] = []
         with th.no_grad():
             for i, module in enumerate(first.sf_net):
@@ -89,13 +89,13 @@ class StackedMLP:
     @staticmethod
     def supports(net: nn.Module) -> bool:
         """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
-        if not isinstance(net, SFNetwork):
+        if not isinstance(net, SFNetwork) or not all(isinstance(head, nn.Sequential) for head in net.heads):
             return False
         extractor = net.features_extractor
         if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):
             return False
         allowed = tuple(_ACTIVATIONS.values())
-        for module in (module for head in (net.sf_net, *net.other_critics) for module in head):
+        for module in (module for head in net.heads for module in head):
             if isinstance(module, nn.Linear):
                 if module.bias is None:
                     return False

@@ -22,6 +22,17 @@ MAX_TABLE_STATES = 50_000_000
 MAX_CRITICS = 16
 
 
+def check_n_critics(n_critics: Any) -> int:
+    """
+    :param n_critics: a number of heads of an :class:`SFNetwork`
+    :return: it, checked
+    :raises ValueError: not an integer in ``[1, MAX_CRITICS]``
+    """
+    if isinstance(n_critics, bool) or not isinstance(n_critics, int) or not 1 <= n_critics <= MAX_CRITICS:
+        raise ValueError(f"n_critics must be an integer in [1, {MAX_CRITICS}], got {n_critics!r}")
+    return n_critics
+
+
 def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
     """
     ``Q_w(s, a) = w · ψ(s, a)``.
@@ -110,8 +121,7 @@ class SFNetwork(BasePolicy):
         normalize_images: bool = True,
         n_critics: int = 1,
     ):
-        if isinstance(n_critics, bool) or not isinstance(n_critics, int) or not 1 <= n_critics <= MAX_CRITICS:
-            raise ValueError(f"n_critics must be an integer in [1, {MAX_CRITICS}], got {n_critics!r}")
+        check_n_critics(n_critics)
         super().__init__(
             observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
         )
@@ -130,14 +140,19 @@ class SFNetwork(BasePolicy):
             *create_mlp(self.features_dim, self.n_actions * self.reward_dim, self.net_arch, self.activation_fn)
         )
 
+    @property
+    def heads(self) -> list[nn.Module]:
+        """The ``n_critics`` MLPs, the first (``sf_net``) first."""
+        return [self.sf_net, *self.other_critics]
+
     def forward_heads(self, obs: PyTorchObs) -> th.Tensor:
         """
         :param obs: Observation batch
         :return: ``ψ(s, ·)`` of every head, shape ``(n_critics, batch, n_actions, d)``
         """
         features = self.extract_features(obs, self.features_extractor)
-        heads = [self.sf_net(features), *(head(features) for head in self.other_critics)]
-        return th.stack(heads).view(self.n_critics, -1, self.n_actions, self.reward_dim)
+        psi = th.stack([head(features) for head in self.heads])
+        return psi.view(self.n_critics, -1, self.n_actions, self.reward_dim)
 
     def forward(self, obs: PyTorchObs) -> th.Tensor:
         """
