@@ -32,6 +32,8 @@ from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
+from sb3_sfgpi.sfdqn.planning import Experience, plan_afresh
+from sb3_sfgpi.sfdqn.sfdqn import SETTLE_SWEEPS
 
 #: How the values of new policies can be estimated (see :class:`ValueEstimation`)
 VALUE_MODES = ("joint", "shared", "gpi")
@@ -167,6 +169,10 @@ class OLSCallback(BaseCallback):
     :param transfer: start each new learner from the policy of Π that is best for its weights
     :param gpi_behaviour: each new learner acts ε-greedily by GPI over Π (as GPI acts at execution) and itself
         (SFOLS's behaviour), instead of by itself alone; what it learns stays its own policy's SFs
+    :param replan: old policies keep learning (tabular learners only): after every iteration its transitions join
+        the run's experience (every transition every learner recorded, pooled), and every policy of Π and every new
+        one is planned from ψ = 0 on that experience's model for its own weights, until it converges (see
+        :meth:`_replan`)
     :param progress_bar: show progress bars for the iteration and the evaluation
     :param verbose: 1 prints a line per iteration
     """
@@ -185,6 +191,7 @@ class OLSCallback(BaseCallback):
         max_iterations: int | None = None,
         transfer: bool = False,
         gpi_behaviour: bool = False,
+        replan: bool = False,
         progress_bar: bool = False,
         verbose: int = 0,
     ):
@@ -211,6 +218,8 @@ class OLSCallback(BaseCallback):
         self.max_iterations = max_iterations
         self.transfer = transfer
         self.gpi_behaviour = gpi_behaviour
+        self.replan = replan
+        self.experience: Experience | None = None  # with replan: every transition recorded so far, pooled
         self.progress_bar = progress_bar
         self.policy_set = GPIPolicy()  # Π: what GPI acts over
         self.record = GPIPolicy()  # every policy admitted to Π, those retired since included (what is saved)
@@ -274,6 +283,8 @@ class OLSCallback(BaseCallback):
         if self._iteration_bar is not None:
             self._iteration_bar.close()
         self.model.end_iteration()
+        if self.replan:
+            self._replan()
         left_out: dict[str, np.ndarray] = {}
         for name, value in self._estimate_values().items():
             # a new value: the policy is a candidate for Π
@@ -293,6 +304,33 @@ class OLSCallback(BaseCallback):
             self.finished = True
         else:
             self._start_iteration(next_weights)
+
+    def _replan(self) -> None:
+        """
+        Old policies keep learning: the iteration's transitions join the run's experience, on which every policy of Π
+        and every new one is then planned afresh for its own weights (GPI-PD's old policies trained on the replayed
+        data, done exactly for tables). A policy's table becomes a function of the experience and its weights alone,
+        so a resumed run plans Π again from the checkpoint's experience and goes on exactly.
+        """
+        for name in self.model.learner_names:
+            learner = self.model.learners[name]
+            recorded = learner.policy.experience(learner.replay_buffer)
+            self.experience = recorded if self.experience is None else self.experience.merge(recorded)
+        for learner in self.model.learners.values():
+            learner.policy.fill(0.0)
+            learner.policy.plan(self.experience, self.model.gamma, SETTLE_SWEEPS)
+        self._plan_policy_set()
+
+    def _plan_policy_set(self) -> None:
+        """Plan every policy of Π afresh on the run's experience (see :meth:`_replan`)."""
+        assert self.experience is not None
+        model = self.experience.model()
+        for net, info in zip(self.record.networks, self.record.infos, strict=True):
+            if info.retired is None:
+                plan_afresh(net.entries(), model, info.weights, self.model.gamma, SETTLE_SWEEPS)
+        self.record.networks_changed()
+        self.policy_set = self.record.members()
+        self._validation_score = None
 
     def _next_weights(self) -> AgentWeights | None:
         """The next weights from the schedule (top of the OLS queue, Dirichlet(1) beyond it), None when it ended."""
@@ -468,7 +506,11 @@ class OLSCallback(BaseCallback):
             "schedule": self.schedule.state_dict(),
             "next_weights": None if next_weights is None else {a: w.tolist() for a, w in next_weights.items()},
         }
+        if self.experience is not None:
+            self.run_dir.save_experience(self.experience, self.iteration)
         self.run_dir.write_iteration(self.history, checkpoint)
+        if self.experience is not None:
+            self.run_dir.remove_older_experience(self.iteration)
 
     def _restore(self) -> AgentWeights | None:
         """Restore the state of the last finished iteration; return the next weights (None if the schedule ended)."""
@@ -477,6 +519,9 @@ class OLSCallback(BaseCallback):
         self.schedule.load_state_dict(state["schedule"])
         self.record = self.run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
         self.policy_set = self.record.members()
+        if self.replan:  # Π as the checkpoint's iteration planned it (Π's files may be from a later one)
+            self.experience = self.run_dir.load_experience(state["iteration"])
+            self._plan_policy_set()
         self.history = self.run_dir.read_history(state["iteration"])
         self.iteration = state["iteration"]
         self.model.num_timesteps = state["timesteps"]

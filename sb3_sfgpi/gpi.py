@@ -150,8 +150,7 @@ class GPIPolicy:
             for net in self.networks:
                 net.to(self._device)
         self._device_request = device
-        self._stacked = None
-        self._weights_cache = None
+        self.networks_changed()
         return self
 
     @property
@@ -220,9 +219,13 @@ class GPIPolicy:
             parameter.requires_grad_(False)
         self.networks.append(copied)
         self.infos.append(PolicyInfo(w, v, agent, iteration, retired))
+        self.networks_changed()
+        return len(self.networks) - 1
+
+    def networks_changed(self) -> None:
+        """Drop what the set derived from its networks (stacked copies): call it after changing them in place."""
         self._stacked = None
         self._weights_cache = None
-        return len(self.networks) - 1
 
     def pop(self) -> PolicyInfo:
         """
@@ -233,8 +236,7 @@ class GPIPolicy:
         """
         self._first()
         self.networks.pop()
-        self._stacked = None
-        self._weights_cache = None
+        self.networks_changed()
         return self.infos.pop()
 
     def retire(self, index: int, iteration: int | None) -> None:

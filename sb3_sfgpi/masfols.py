@@ -42,6 +42,7 @@ SETTINGS = (
     "validation_weights",
     "prune",
     "admit_together",
+    "replan",
     "sharing",
     "n_envs",
 )
@@ -54,6 +55,7 @@ SETTING_DEFAULTS = {
     "n_envs": 1,
     "ols_batch": "top",
     "gpi_behaviour": False,
+    "replan": False,
 }
 
 
@@ -93,6 +95,9 @@ class MASFOLS:
     :param admit_together: after the one-by-one admission of an iteration, also try its policies left out together:
         they join Π together if GPI does no worse with them all (needs ``validation_weights > 0``; nothing to do with
         ``sharing="shared"``: one policy per iteration)
+    :param replan: old policies keep learning (``TabularPolicy`` only): after every iteration, every policy of Π and
+        every new one is planned afresh, for its own weights, on the run's experience, every transition recorded by
+        every learner so far (see :meth:`~sb3_sfgpi.callbacks.OLSCallback._replan`)
     :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (every iteration
         trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
         learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the
@@ -132,6 +137,7 @@ class MASFOLS:
         validation_weights: int = 0,
         prune: bool = False,
         admit_together: bool = False,
+        replan: bool = False,
         sharing: str = "independent",
         n_envs: int = 1,
         env_fn: Callable[..., ParallelEnv] | None = None,
@@ -143,6 +149,8 @@ class MASFOLS:
         verbose: int = 0,
     ):
         learner_kwargs = dict(learner_kwargs or {})
+        if replan and policy != "TabularPolicy":
+            raise ValueError(f"replan plans tables: it needs policy='TabularPolicy', not {policy!r}")
         self.runner = MultiAgentRunner(
             env,
             default_learner_factory(policy=policy, **learner_kwargs),
@@ -175,6 +183,7 @@ class MASFOLS:
             "validation_weights": validation_weights,
             "prune": prune,
             "admit_together": admit_together,
+            "replan": replan,
             "sharing": sharing,
             "n_envs": n_envs,
         }
@@ -192,6 +201,7 @@ class MASFOLS:
             run_dir=self.run_dir,
             transfer=transfer,
             gpi_behaviour=gpi_behaviour,
+            replan=replan,
             verbose=verbose,
         )
         self.run_info = {**dict(run_info or {}), **self.settings}

@@ -51,6 +51,14 @@ def test_resume_continues_to_more_iterations(run_dir, tmp_path):
     assert len((out / "evaluation.csv").read_text().splitlines()) == 4
 
 
+def test_replan_is_the_domains_unless_given(run_dir, tmp_path):
+    assert json.loads((run_dir / "run.json").read_text())["replan"] is four_room().get("replan", False)
+    out = tmp_path / "replan"
+    assert main([*TRAIN, *FEW_VALIDATION, "--iterations", "1", "--no-replan", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["replan"] is False and not (out / "experience").exists()
+    assert main([*TRAIN, *FEW_VALIDATION, "--iterations", "2", "--replan", "--resume", "--out", str(out)]) == 2
+
+
 def test_value_mode_is_the_domains_unless_given(run_dir, tmp_path):
     assert json.loads((run_dir / "run.json").read_text())["value_mode"] == "joint"
     out = tmp_path / "gpi"
@@ -126,6 +134,7 @@ def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys)
         (["evaluate", "RUN", "--random-weights", "0"], "--random-weights must be positive, got 0"),
         (["evaluate", "RUN", "--random-weights", "2", "--members"], "--members needs --w"),
         (["train", "no-such-domain"], "unknown domain"),
+        (["train", "four-room", "--replan", "--learner", "policy=MlpPolicy", "--out", "NOT_A_RUN"], "plans tables"),
         (["plot", "NOT_A_RUN", "-o", "x.png"], "not a run directory"),
     ],
 )

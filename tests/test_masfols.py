@@ -76,6 +76,29 @@ def test_ols_finds_the_optimum_and_stops_before_the_cap():
             assert np.dot(entry["weights"], returns["undiscounted"]) == pytest.approx(optimal_value(entry["weights"]))
 
 
+def optimal_for_their_weights(policy_set: GPIPolicy) -> list[bool]:
+    """Whether each policy's own ``max_a w · ψ(s0, a)`` is the optimal value of its weights."""
+    return [
+        policy_set.subset([i]).q_values(OBS[:1], info.weights).max() == pytest.approx(optimal_value(info.weights))
+        for i, info in enumerate(policy_set.infos)
+    ]
+
+
+def test_replan_plans_every_policy_on_all_the_runs_transitions_for_its_own_weights():
+    short = dict(steps=15, weights="random", seed=0)  # learners too short to learn their weights
+    replanned = make(**short, replan=True).learn(max_iterations=4)
+    experience = replanned.callback.experience
+    assert len(experience) == 4 * 15 * 2  # every transition of both agents, every iteration
+    assert len(experience.model().entries) == TERMINAL * 3  # every (state, action) pair recorded
+    assert all(optimal_for_their_weights(replanned.callback.record.members()))
+    assert not all(optimal_for_their_weights(make(**short).learn(max_iterations=4).callback.record.members()))
+
+
+def test_replan_is_refused_without_tables():
+    with pytest.raises(ValueError, match="replan plans tables: it needs policy='TabularPolicy', not 'MlpPolicy'"):
+        MASFOLS(ParallelChainEnv(2), policy="MlpPolicy", replan=True)
+
+
 def test_gpi_values_are_gpis_return_over_the_set_and_the_new_policies_at_each_learners_weights():
     model = make(steps=40, value_mode="gpi").learn(max_iterations=2)
     record = model.callback.record
@@ -139,6 +162,7 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
         {"weights": "random", "validation_weights": 3, "prune": True, "admit_together": True},
         {"weights": "random", "sharing": "shared"},
         {"weights": "ols", "gpi_behaviour": True},
+        {"weights": "random", "replan": True, "validation_weights": 3, "prune": True},
     ],
 )
 def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):
@@ -158,9 +182,34 @@ def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):
     assert json.loads((tmp_path / "cut" / "checkpoint.json").read_text())["iteration"] == len(whole.history)
 
 
+def test_replan_resumes_exactly_where_the_policy_files_are_from_an_iteration_past_the_checkpoint(tmp_path):
+    kwargs = dict(steps=15, seed=1, weights="random", replan=True, gpi_behaviour=True)  # Π acts while learning
+    whole = make(**kwargs, run_dir=tmp_path / "whole").learn(max_iterations=3)
+    cut = tmp_path / "cut"
+    make(**kwargs, run_dir=cut).learn(max_iterations=1)
+    kept = {path: path.read_bytes() for path in [*cut.glob("*.json"), *cut.glob("*.csv"), *cut.glob("experience/*")]}
+    policies_then = GPIPolicy.load(cut / "policy_set").successor_features(OBS)
+    MASFOLS.load(cut, ParallelChainEnv(2)).learn(max_iterations=2)
+    for path, data in kept.items():  # killed after writing Π, before the checkpoint of iteration 2
+        path.write_bytes(data)
+    policies_later = GPIPolicy.load(cut / "policy_set").subset(range(len(policies_then)))
+    assert not np.allclose(policies_later.successor_features(OBS), policies_then)  # planned on more transitions
+
+    continued = MASFOLS.load(cut, ParallelChainEnv(2)).learn(max_iterations=1)  # restores, trains nothing
+    np.testing.assert_array_equal(continued.policy_set.successor_features(OBS), policies_then)
+    continued.learn(max_iterations=3)
+    assert [r["mean_return"] for r in continued.history] == [r["mean_return"] for r in whole.history]
+    assert_same_policy_sets(continued.policy_set, whole.policy_set)
+    assert sorted(path.name for path in (cut / "experience").iterdir()) == ["003.npz"]
+
+
 @pytest.mark.parametrize(
     ("setting", "kwargs"),
-    [("validation_weights", {}), ("admit_together", {"validation_weights": 2, "admit_together": True})],
+    [
+        ("validation_weights", {}),
+        ("admit_together", {"validation_weights": 2, "admit_together": True}),
+        ("replan", {}),
+    ],
 )
 def test_a_run_written_before_a_setting_existed_continues_without_it(tmp_path, setting, kwargs):
     make(steps=50, weights="random", run_dir=tmp_path, **kwargs).learn(max_iterations=1)

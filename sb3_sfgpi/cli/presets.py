@@ -51,6 +51,8 @@ class DomainPreset:
         weights (with ``validation_weights > 0``)
     :param admit_together: also try an iteration's policies left out by validation together (with
         ``validation_weights > 0``)
+    :param replan: plan every policy of Π again on the run's pooled experience after every iteration (tabular
+        learners; see :class:`~sb3_sfgpi.callbacks.OLSCallback`)
     :param eval_workers: default number of evaluation processes
     :param objectives: the objectives' names, one per reward component
     :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions
@@ -76,6 +78,7 @@ class DomainPreset:
     validation_weights: int = 0
     prune: bool = False
     admit_together: bool = False
+    replan: bool = False
     eval_workers: int = 0
     objectives: list[str] | None = None
     baselines: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -155,7 +158,7 @@ class DomainPreset:
             raise UsageError(f"domain {self.name!r}: learner_kwargs lacks 'policy'")
         if self.ols_batch not in OLS_BATCHES:
             raise UsageError(f"domain {self.name!r}: ols_batch must be one of {OLS_BATCHES}, got {self.ols_batch!r}")
-        for key in ("prune", "admit_together"):
+        for key in ("prune", "admit_together", "replan"):
             if not isinstance(getattr(self, key), bool):
                 raise UsageError(f"domain {self.name!r}: {key} must be true or false, got {getattr(self, key)!r}")
 

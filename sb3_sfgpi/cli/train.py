@@ -113,6 +113,12 @@ def add_parser(sub: Any) -> None:
         "the set if GPI does at least as well with them all (needs validation weights; default: the domain's)",
     )
     train.add_argument(
+        "--replan",
+        action=argparse.BooleanOptionalAction,
+        help="old policies keep learning: after every iteration, plan every policy of the set again, for its own "
+        "weights, on every transition the run has recorded (tabular learners; default: the domain's)",
+    )
+    train.add_argument(
         "--torch-threads",
         type=int,
         default=1,
@@ -226,6 +232,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
         "admit_together": _validation_rule(
             "--admit-together", args.admit_together, preset.admit_together, validation_weights
         ),
+        "replan": preset.replan if args.replan is None else args.replan,
         "sharing": args.sharing or SETTING_DEFAULTS["sharing"],
         "n_envs": SETTING_DEFAULTS["n_envs"] if args.n_envs is None else args.n_envs,
     }
@@ -300,6 +307,7 @@ def _resumed_config(args: argparse.Namespace, run_dir: RunDirectory, config: dic
         "--validation-weights",
         "--prune",
         "--admit-together",
+        "--replan",
         "--sharing",
         "--n-envs",
     ):
@@ -349,6 +357,7 @@ def _model(
         validation_weights=config["validation_weights"],
         prune=config["prune"],
         admit_together=config["admit_together"],
+        replan=config["replan"],
         sharing=config["sharing"],
         n_envs=config["n_envs"],
         run_info=config,

@@ -240,6 +240,18 @@ class TabularSFNetwork(BasePolicy):
         self.table = nn.Embedding(n_states, self.n_actions * reward_dim)
         nn.init.zeros_(self.table.weight)
 
+    def entries(self) -> np.ndarray:
+        """
+        The table as one row of ψ per ``(state, action)`` (row ``s * n_actions + a``): a numpy view sharing memory
+        with the module, so updates through it are updates of the table.
+
+        :raises ValueError: the table is not on the CPU
+        """
+        weight = self.table.weight
+        if weight.device.type != "cpu":
+            raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
+        return weight.detach().numpy().reshape(-1, self.reward_dim)
+
     def rows(self, obs: np.ndarray, check: bool = True) -> np.ndarray:
         """
         Numpy twin of :meth:`state_index`: row indices of raw observations, shape ``(batch,)``.

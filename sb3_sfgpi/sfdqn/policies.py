@@ -24,7 +24,7 @@ from sb3_sfgpi.sfdqn.networks import (
     greedy_entries,
     scalarize,
 )
-from sb3_sfgpi.sfdqn.planning import EmpiricalModel
+from sb3_sfgpi.sfdqn.planning import Experience, plan_table
 
 
 class SFDQNPolicy(BasePolicy):
@@ -286,18 +286,6 @@ class TabularPolicy(SFDQNPolicy):
         """A new zero-initialised SF table."""
         return TabularSFNetwork(self.observation_space, self.action_space, self.reward_dim).to(self.device)  # type: ignore[arg-type]
 
-    def _entries(self, net: TabularSFNetwork) -> np.ndarray:
-        """
-        The table as one row of ψ per ``(state, action)`` (row ``s * n_actions + a``): a numpy view sharing memory
-        with the module, so updates through it are updates of the table.
-
-        :raises ValueError: the table is not on the CPU
-        """
-        weight = net.table.weight
-        if weight.device.type != "cpu":
-            raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
-        return weight.detach().numpy().reshape(-1, self.reward_dim)
-
     def _on_cpu(self) -> bool:
         # ``self.device`` walks the parameters; the table's own tensor says it directly.
         return self.sf_net.table.weight.device.type == "cpu"
@@ -334,32 +322,39 @@ class TabularPolicy(SFDQNPolicy):
         if self.sf_net_target is not self.sf_net:
             self.sf_net_target.load_state_dict(self.sf_net.state_dict())
 
+    def experience(self, replay_buffer: MOReplayBuffer) -> Experience:
+        """The transitions of ``replay_buffer``, condensed for planning (see :class:`Experience`)."""
+        net = self.sf_net
+        obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
+        rows, next_rows = net.rows(obs, check=False), net.rows(next_obs, check=False)
+        return Experience.from_transitions(
+            rows, actions, next_rows, dones, rewards, net.table.num_embeddings, net.n_actions
+        )
+
     def plan(
-        self, replay_buffer: MOReplayBuffer, gamma: float, max_sweeps: int, untried_value: float | None = None
+        self,
+        experience: MOReplayBuffer | Experience,
+        gamma: float,
+        max_sweeps: int,
+        untried_value: float | None = None,
     ) -> int:
         """
         Dyna-style planning: sweeps of the SF backup over every pair recorded in the replay buffer (see
-        :class:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel`); a separate target table is then set to the result.
+        :class:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel`), or in an experience pooled from several; a separate
+        target table is then set to the result.
 
-        :param replay_buffer: the transitions that make the model
+        :param experience: the transitions that make the model: a replay buffer or an
+            :class:`~sb3_sfgpi.sfdqn.planning.Experience`
         :param gamma: discount factor
         :param max_sweeps: most sweeps to do
-        :param untried_value: if given, every pair not recorded in the buffer first gets ``ψ`` of this value in
-            each component (0: what a fresh table holds), so that the sweeps back up no other value for them
+        :param untried_value: if given, every pair not recorded first gets ``ψ`` of this value in each component (0:
+            what a fresh table holds), so that the sweeps back up no other value for them
         :return: the number of sweeps done
         """
+        if not isinstance(experience, Experience):
+            experience = self.experience(experience)
         net = self.sf_net
-        entries = self._entries(net)
-        obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
-        rows, next_rows = net.rows(obs, check=False), net.rows(next_obs, check=False)
-        model = EmpiricalModel.from_transitions(
-            rows, actions, next_rows, dones, rewards, net.table.num_embeddings, net.n_actions
-        )
-        if untried_value is not None:
-            untried = np.ones(len(entries), dtype=bool)
-            untried[model.entries] = False
-            entries[untried] = untried_value
-        sweeps = model.sweep(entries, self.weights.numpy(), gamma, max_sweeps) if len(actions) else 0
+        sweeps = plan_table(net.entries(), experience.model(), self.weights.numpy(), gamma, max_sweeps, untried_value)
         if self.sf_net_target is not net:
             self.sf_net_target.load_state_dict(net.state_dict())
         return sweeps
@@ -384,7 +379,7 @@ class TabularPolicy(SFDQNPolicy):
         :return: the loss before the step
         """
         net, target_net = self.sf_net, self.sf_net_target
-        entries = self._entries(net)
+        entries = net.entries()
         if vec_normalize_env is not None and vec_normalize_env.norm_obs:
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
         obs, actions, next_obs, dones, rewards = replay_buffer.sample_arrays(batch_size)
@@ -392,7 +387,7 @@ class TabularPolicy(SFDQNPolicy):
         next_flat = greedy_entries(
             entries, net.rows(next_obs, check=False) * n_actions, n_actions, self.weights.numpy()
         )
-        next_entries = self._entries(target_net) if target_net is not net else entries
+        next_entries = target_net.entries() if target_net is not net else entries
         target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_entries[next_flat]
         flat = net.rows(obs, check=False) * n_actions + actions.astype(np.int64)
         td_error = target_psi - entries[flat]
