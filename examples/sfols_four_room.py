@@ -89,8 +89,7 @@ def replan(policy_set: GPIPolicy, model: SFDQN, experience: Experience | None) -
     recorded = model.policy.experience(model.replay_buffer)
     experience = recorded if experience is None else experience.merge(recorded)
     empirical = experience.model()
-    model.policy.fill(0.0)
-    model.policy.plan(experience, GAMMA, SETTLE_SWEEPS)
+    model.policy.plan_afresh(empirical, GAMMA, SETTLE_SWEEPS)
     for net, info in zip(policy_set.networks, policy_set.infos, strict=True):
         plan_afresh(net.entries(), empirical, info.weights, GAMMA, SETTLE_SWEEPS)
     policy_set.networks_changed()

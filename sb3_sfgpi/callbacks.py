@@ -32,7 +32,7 @@ from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
-from sb3_sfgpi.sfdqn.planning import Experience, plan_afresh
+from sb3_sfgpi.sfdqn.planning import EmpiricalModel, Experience, plan_afresh
 from sb3_sfgpi.sfdqn.sfdqn import SETTLE_SWEEPS
 
 #: How the values of new policies can be estimated (see :class:`ValueEstimation`)
@@ -312,19 +312,16 @@ class OLSCallback(BaseCallback):
         data, done exactly for tables). A policy's table becomes a function of the experience and its weights alone,
         so a resumed run plans Π again from the checkpoint's experience and goes on exactly.
         """
-        for name in self.model.learner_names:
-            learner = self.model.learners[name]
+        for learner in self.model.learners.values():
             recorded = learner.policy.experience(learner.replay_buffer)
             self.experience = recorded if self.experience is None else self.experience.merge(recorded)
-        for learner in self.model.learners.values():
-            learner.policy.fill(0.0)
-            learner.policy.plan(self.experience, self.model.gamma, SETTLE_SWEEPS)
-        self._plan_policy_set()
-
-    def _plan_policy_set(self) -> None:
-        """Plan every policy of Π afresh on the run's experience (see :meth:`_replan`)."""
-        assert self.experience is not None
         model = self.experience.model()
+        for learner in self.model.learners.values():
+            learner.policy.plan_afresh(model, self.model.gamma, SETTLE_SWEEPS)
+        self._plan_policy_set(model)
+
+    def _plan_policy_set(self, model: EmpiricalModel) -> None:
+        """Plan every policy of Π afresh on ``model``, the run's experience's (see :meth:`_replan`)."""
         for net, info in zip(self.record.networks, self.record.infos, strict=True):
             if info.retired is None:
                 plan_afresh(net.entries(), model, info.weights, self.model.gamma, SETTLE_SWEEPS)
@@ -521,7 +518,7 @@ class OLSCallback(BaseCallback):
         self.policy_set = self.record.members()
         if self.replan:  # Π as the checkpoint's iteration planned it (Π's files may be from a later one)
             self.experience = self.run_dir.load_experience(state["iteration"])
-            self._plan_policy_set()
+            self._plan_policy_set(self.experience.model())
         self.history = self.run_dir.read_history(state["iteration"])
         self.iteration = state["iteration"]
         self.model.num_timesteps = state["timesteps"]

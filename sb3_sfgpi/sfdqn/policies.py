@@ -24,7 +24,7 @@ from sb3_sfgpi.sfdqn.networks import (
     greedy_entries,
     scalarize,
 )
-from sb3_sfgpi.sfdqn.planning import Experience, plan_table
+from sb3_sfgpi.sfdqn.planning import EmpiricalModel, Experience, plan_afresh, plan_table
 
 
 class SFDQNPolicy(BasePolicy):
@@ -332,31 +332,37 @@ class TabularPolicy(SFDQNPolicy):
         )
 
     def plan(
-        self,
-        experience: MOReplayBuffer | Experience,
-        gamma: float,
-        max_sweeps: int,
-        untried_value: float | None = None,
+        self, replay_buffer: MOReplayBuffer, gamma: float, max_sweeps: int, untried_value: float | None = None
     ) -> int:
         """
         Dyna-style planning: sweeps of the SF backup over every pair recorded in the replay buffer (see
-        :class:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel`), or in an experience pooled from several; a separate
-        target table is then set to the result.
+        :class:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel`); a separate target table is then set to the result.
 
-        :param experience: the transitions that make the model: a replay buffer or an
-            :class:`~sb3_sfgpi.sfdqn.planning.Experience`
+        :param replay_buffer: the transitions that make the model
         :param gamma: discount factor
         :param max_sweeps: most sweeps to do
-        :param untried_value: if given, every pair not recorded first gets ``ψ`` of this value in each component (0:
-            what a fresh table holds), so that the sweeps back up no other value for them
+        :param untried_value: if given, every pair not recorded in the buffer first gets ``ψ`` of this value in
+            each component (0: what a fresh table holds), so that the sweeps back up no other value for them
         :return: the number of sweeps done
         """
-        if not isinstance(experience, Experience):
-            experience = self.experience(experience)
-        net = self.sf_net
-        sweeps = plan_table(net.entries(), experience.model(), self.weights.numpy(), gamma, max_sweeps, untried_value)
-        if self.sf_net_target is not net:
-            self.sf_net_target.load_state_dict(net.state_dict())
+        model = self.experience(replay_buffer).model()
+        return self._planned(
+            plan_table(self.sf_net.entries(), model, self.weights.numpy(), gamma, max_sweeps, untried_value)
+        )
+
+    def plan_afresh(self, model: EmpiricalModel, gamma: float, max_sweeps: int) -> int:
+        """
+        Value iteration from ``ψ = 0`` on ``model`` (e.g. of an :class:`Experience` pooled from several buffers; see
+        :func:`~sb3_sfgpi.sfdqn.planning.plan_afresh`); a separate target table is then set to the result.
+
+        :return: the number of sweeps done
+        """
+        return self._planned(plan_afresh(self.sf_net.entries(), model, self.weights.numpy(), gamma, max_sweeps))
+
+    def _planned(self, sweeps: int) -> int:
+        """After planning: the target table (if separate) set to the planned one; ``sweeps`` passed on."""
+        if self.sf_net_target is not self.sf_net:
+            self.sf_net_target.load_state_dict(self.sf_net.state_dict())
         return sweeps
 
     def td_update(
