@@ -11,6 +11,8 @@ Finished runs are skipped and interrupted ones resumed.
     python examples/four_room.py --seeds 0 1 2 --out runs/fig4
     python examples/four_room.py --seeds 0 1 2 --apriori-seeds 0 --out runs/fig4   # 12 more runs of 6-12 minutes
     python examples/four_room.py --env observation_mode=xy --out runs/fig4-xy --figure docs/figures/four_room_xy.png
+    python examples/four_room.py --sharing shared --apriori-seeds 0 --out runs/fig4-shared \
+        --figure docs/figures/four_room_shared.png   # one learner both agents act with and feed, a priori too
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 from sb3_sfgpi.cli.plot import a_priori_reference, final_test_returns, own_weight_return
 from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.weights import format_weights, random_weights, same_weight
+from sb3_sfgpi.multiagent import SHARINGS
 from sb3_sfgpi.plots import align_runs, ols_ended
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.sweep import RunSpec, run_sweep
@@ -61,6 +64,7 @@ def main() -> None:
     parser.add_argument("--num-cpus", type=int, help="CPUs of the local Ray: runs at a time (default: all cores)")
     parser.add_argument("--address", help="a Ray cluster to run on (default: RAY_ADDRESS, else a local Ray)")
     parser.add_argument("--apriori-seeds", type=int, nargs="*", default=[], help="seeds of the a-priori reference")
+    parser.add_argument("--sharing", choices=list(SHARINGS), help="learners of every run (default: the domain's)")
     parser.add_argument(
         "--env", metavar="KEY=VALUE", action="append", default=[], help="env override, e.g. observation_mode=xy"
     )
@@ -71,6 +75,8 @@ def main() -> None:
         extra += ["--iterations", str(args.iterations)]
     if args.steps_per_iteration:
         extra += ["--steps-per-iteration", str(args.steps_per_iteration)]
+    if args.sharing:
+        extra += ["--sharing", args.sharing]
     jobs = [(algo, seed) for seed in args.seeds for algo in ("ma-sfols", "random")]
     specs = [RunSpec("four-room", algo, seed, options=tuple(extra), name=f"{algo}-s{seed}") for algo, seed in jobs]
     trained = train(args, [*specs, *apriori_specs(args, extra)])
@@ -123,7 +129,8 @@ def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
     iterations = args.iterations or preset.iterations
     budget = iterations * (args.steps_per_iteration or preset.steps_per_iteration)
     weights = random_weights(3, preset.n_test_weights, rng=0)  # MASFOLS's test weights
-    options = (*(item for item in extra if item.startswith("--env")), "--iterations", "1")
+    sharing = ["--sharing", args.sharing] if args.sharing else []
+    options = (*(item for item in extra if item.startswith("--env")), *sharing, "--iterations", "1")
     return [
         RunSpec(
             "four-room",

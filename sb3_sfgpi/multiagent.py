@@ -141,6 +141,8 @@ def _replaced(rows: np.ndarray, slots: list[int], values: np.ndarray) -> np.ndar
 
 #: The name of the one learner all agents share (``sharing="shared"``).
 SHARED = "shared"
+#: How agents get their learners: one each, or one for all (:class:`MultiAgentRunner`'s ``sharing``).
+SHARINGS = ("independent", SHARED)
 
 
 class MultiAgentRunner:
@@ -194,8 +196,8 @@ class MultiAgentRunner:
     ):
         if isinstance(log_interval, bool) or not isinstance(log_interval, int) or log_interval < 1:
             raise ValueError(f"log_interval must be a positive integer, got {log_interval!r}")
-        if sharing not in ("independent", "shared"):
-            raise ValueError(f"sharing must be 'independent' or 'shared', got {sharing!r}")
+        if sharing not in SHARINGS:
+            raise ValueError(f"sharing must be one of {SHARINGS}, got {sharing!r}")
         if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
             raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
         if n_envs > 1 and env_fn is None:

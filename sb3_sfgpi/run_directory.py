@@ -35,6 +35,7 @@ from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoard
 
 from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json, read_json
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
+from sb3_sfgpi.multiagent import SHARINGS
 from sb3_sfgpi.sfdqn.planning import Experience
 
 #: The columns of ``evaluation.csv``, in order.
@@ -93,7 +94,7 @@ def _summary_row(row: Any, number: int) -> bool:
 #: What the known settings of ``run.json`` must be (others are kept as they are).
 _SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
     **dict.fromkeys(("domain", "algorithm", "policy", "gpi_set", "value_mode"), lambda v: isinstance(v, str)),
-    "sharing": lambda v: v in ("independent", "shared"),
+    "sharing": lambda v: v in SHARINGS,
     **dict.fromkeys(("env_kwargs", "learner_kwargs"), lambda v: isinstance(v, dict)),
     **dict.fromkeys(("seed", "iterations", "steps_per_iteration", "n_test_weights", "validation_weights"), _integer),
     **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers", "n_envs"), _integer),

@@ -152,6 +152,31 @@ def test_plot_draws_a_png(run_dir, tmp_path):
     assert output.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_sharing_is_the_domains_unless_given(run_dir, tmp_path):
+    assert json.loads((run_dir / "run.json").read_text())["sharing"] == four_room()["sharing"] == "independent"
+    assert {info.agent for info in GPIPolicy.load(run_dir / "policy_set").infos} <= {"agent_0", "agent_1"}
+    out = tmp_path / "shared"
+    assert main([*TRAIN, *FEW_VALIDATION, "--iterations", "1", "--sharing", "shared", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["sharing"] == "shared"
+    assert [info.agent for info in GPIPolicy.load(out / "policy_set").infos] == ["shared"]  # one learner for both
+
+
+def test_compare_evaluates_a_fixed_run_of_one_shared_learner_by_its_policies(run_dir, tmp_path):
+    fixed = tmp_path / "fixed-shared"
+    train = [*TRAIN, "--algo", "fixed", "--w", "0.2", "0.3", "0.5", "--iterations", "1", "--sharing", "shared"]
+    assert main([*train, "--out", str(fixed)]) == 0
+    out = tmp_path / "compare.json"
+    compare = ["compare", str(run_dir), "--fixed", str(fixed), "--episodes", "1", "--workers", "0", "--no-baselines"]
+    assert main([*compare, "-o", str(out)]) == 0  # no agent learned a policy of its own: both act by the shared one
+    (row,) = [row for row in json.loads(out.read_text())["rows"] if row["method"] == "fixed"]
+    assert row["label"] == "scalarized w=[0.2,0.3,0.5]"
+
+
+def test_a_preset_with_an_unknown_sharing_is_refused():
+    with pytest.raises(UsageError, match="sharing must be one of .*'independent', 'shared'.*, got 'pooled'"):
+        DomainPreset.from_dict("four-room", {**four_room(), "sharing": "pooled"})
+
+
 def test_plot_mean_over_seeds_forward_fills_runs_that_ended_early():
     from sb3_sfgpi.plots import align_runs
 

@@ -26,7 +26,8 @@ def test_gpi_beats_a_random_policy_on_every_test_weight():
     env = domain["make_env"](**domain["env_kwargs"])
     gamma = domain["learner_kwargs"]["gamma"]
     test_weights = random_weights(3, domain["n_test_weights"], rng=0)
-    runner = MultiAgentRunner(env, default_learner_factory(**domain["learner_kwargs"]), seed=0, gamma=gamma)
+    learners = default_learner_factory(**domain["learner_kwargs"])
+    runner = MultiAgentRunner(env, learners, seed=0, gamma=gamma, sharing=domain["sharing"])
     callback = OLSCallback(
         OLSSchedule(), domain["steps_per_iteration"], EvaluationConfig(test_weights), max_iterations=ITERATIONS
     )

@@ -119,7 +119,7 @@ def test_fixed_weights_with_a_shared_learner_evaluate_gpi_over_the_shared_polici
 
 
 def test_bad_sharing_options_are_refused():
-    with pytest.raises(ValueError, match="sharing must be 'independent' or 'shared'"):
+    with pytest.raises(ValueError, match="sharing must be one of .*'independent', 'shared'"):
         MultiAgentRunner(ParallelChainEnv(2), sharing="pooled")
     with pytest.raises(ValueError, match="optimize_memory_usage=False"):
         MASFOLS(ParallelChainEnv(2), sharing="shared", learner_kwargs={**LEARNER_KWARGS, "optimize_memory_usage": True})

@@ -15,6 +15,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from sb3_sfgpi.cli.errors import UsageError
+from sb3_sfgpi.multiagent import SHARINGS
 from sb3_sfgpi.schedules import OLS_BATCHES
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
@@ -53,6 +54,8 @@ class DomainPreset:
         ``validation_weights > 0``)
     :param replan: plan every policy of Π again on the run's pooled experience after every iteration (tabular
         learners; see :class:`~sb3_sfgpi.callbacks.OLSCallback`)
+    :param sharing: ``"independent"`` (one learner per agent) or ``"shared"`` (one learner that every agent acts with
+        and feeds; see :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`)
     :param eval_workers: default number of evaluation processes
     :param objectives: the objectives' names, one per reward component
     :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions
@@ -79,6 +82,7 @@ class DomainPreset:
     prune: bool = False
     admit_together: bool = False
     replan: bool = False
+    sharing: str = "independent"
     eval_workers: int = 0
     objectives: list[str] | None = None
     baselines: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -158,6 +162,8 @@ class DomainPreset:
             raise UsageError(f"domain {self.name!r}: learner_kwargs lacks 'policy'")
         if self.ols_batch not in OLS_BATCHES:
             raise UsageError(f"domain {self.name!r}: ols_batch must be one of {OLS_BATCHES}, got {self.ols_batch!r}")
+        if self.sharing not in SHARINGS:
+            raise UsageError(f"domain {self.name!r}: sharing must be one of {SHARINGS}, got {self.sharing!r}")
         for key in ("prune", "admit_together", "replan"):
             if not isinstance(getattr(self, key), bool):
                 raise UsageError(f"domain {self.name!r}: {key} must be true or false, got {getattr(self, key)!r}")

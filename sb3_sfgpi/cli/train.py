@@ -16,6 +16,7 @@ from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
 from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_domain
 from sb3_sfgpi.cli.values import check_weights, key_values
 from sb3_sfgpi.masfols import MASFOLS, SETTING_DEFAULTS
+from sb3_sfgpi.multiagent import SHARINGS
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.schedules import OLS_BATCHES
 
@@ -73,9 +74,9 @@ def add_parser(sub: Any) -> None:
     )
     train.add_argument(
         "--sharing",
-        choices=["independent", "shared"],
+        choices=list(SHARINGS),
         help="independent: one learner per agent (the paper); shared: one learner per iteration that every agent "
-        "acts with and feeds (parameter sharing: one weight per iteration; for many agents). Default: independent",
+        "acts with and feeds (parameter sharing: one weight per iteration). Default: the domain's",
     )
     train.add_argument(
         "--n-envs",
@@ -233,7 +234,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> dict[str, Any
             "--admit-together", args.admit_together, preset.admit_together, validation_weights
         ),
         "replan": preset.replan if args.replan is None else args.replan,
-        "sharing": args.sharing or SETTING_DEFAULTS["sharing"],
+        "sharing": args.sharing or preset.sharing,
         "n_envs": SETTING_DEFAULTS["n_envs"] if args.n_envs is None else args.n_envs,
     }
     if args.algo == "fixed":
