@@ -54,6 +54,11 @@ def observation_mode(env_overrides: list[str]) -> str:
     return modes[-1] if modes else "own"
 
 
+def shared_title(sharing: str | None) -> str:
+    """What the figure's title says of the learners: nothing for one per agent (the paper's)."""
+    return ", one learner shared by both agents" if sharing == "shared" else ""
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -93,7 +98,8 @@ def main() -> None:
             str(args.figure),
             *(["--fixed", *map(str, apriori)] if apriori else []),
             "--title",
-            f"Four-Room, {observation_mode(args.env)} observations: GPI return over 12 test weights, both agents",
+            f"Four-Room, {observation_mode(args.env)} observations{shared_title(args.sharing)}: GPI return over 12 "
+            "test weights, both agents",
         ],
         check=True,
     )
