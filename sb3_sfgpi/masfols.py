@@ -59,6 +59,14 @@ SETTING_DEFAULTS = {
 }
 
 
+def acts_by_own_policies(fixed: bool, sharing: str) -> bool:
+    """
+    Whether each agent of a run is evaluated by GPI over the policies it learned itself: fixed weights (a priori
+    scalarised learners) with one learner per agent. Otherwise every agent acts by GPI over the whole set.
+    """
+    return fixed and sharing == "independent"
+
+
 class MASFOLS:
     """
     MA-SFOLS + GPI over a PettingZoo ParallelEnv with vector rewards: one SFDQN per agent (or one that all agents
@@ -187,9 +195,9 @@ class MASFOLS:
             "sharing": sharing,
             "n_envs": n_envs,
         }
-        own = fixed and sharing == "independent"  # fixed weights: each agent by GPI over its own policies
+        policies = "own" if acts_by_own_policies(fixed, sharing) else "shared"
         evaluation = EvaluationConfig(
-            test_weights, eval_episodes, "own" if own else "shared", gpi_set, eval_workers,
+            test_weights, eval_episodes, policies, gpi_set, eval_workers,
             eval_env_fn or env_fn, dict(eval_env_kwargs or env_kwargs or {}),
         )  # fmt: skip
         self.callback = OLSCallback(

@@ -27,7 +27,7 @@ from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.serialization import atomic_write_json
 from sb3_sfgpi.common.weights import format_weights, same_weight
 from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, run_job
-from sb3_sfgpi.masfols import SETTING_DEFAULTS
+from sb3_sfgpi.masfols import SETTING_DEFAULTS, acts_by_own_policies
 from sb3_sfgpi.run_directory import RunDirectory
 
 COMPARE_FORMAT = "sb3-sfgpi/compare"
@@ -146,7 +146,7 @@ def _planned(
     for fixed, fixed_config in fixed_runs:
         w = fixed_config["weights"]
         header = {"method": "fixed", "label": f"scalarized w={format_weights(w)}", "run_dir": str(fixed)}
-        own = fixed_config.get("sharing", SETTING_DEFAULTS["sharing"]) == "independent"  # else one shared learner
+        own = acts_by_own_policies(fixed=True, sharing=fixed_config.get("sharing", SETTING_DEFAULTS["sharing"]))
         planned.append((header, job(w, fixed, own_policies=own)))
     if not args.no_baselines:
         for name, overrides in preset.baselines.items():
