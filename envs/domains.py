@@ -36,8 +36,8 @@ def four_room() -> dict[str, Any]:
     (``--sharing shared``, one weight per iteration) ends higher, 1.329 ± 0.001 → 1.336 ± 0.004 on today's code, and
     starts lower (iteration 1: 1.028 → 0.907, behind Random + GPI at every iteration; README "Four-Room").
 
-    ε falls from 1 to 0.05 over half of each learner's steps. Over a tenth of them a learner of one iteration is as
-    good at its own weight as one of ten, but GPI over such policies ends lower: 1.294 ± 0.016 (0.3: 1.309 ± 0.016,
+    ε falls from 1 to 0.05 over half of each learner's steps. Over a tenth of them a pair of one iteration did as well
+    at its own weight as a pair of ten (at [0.40, 0.59, 0.01]), but GPI ends lower: 1.294 ± 0.016 (0.3: 1.309 ± 0.016,
     0.8: 1.323 ± 0.009, the preset's 0.5: 1.329 ± 0.001; 3 seeds, README "Four-Room").
     """
     from sfgpi_envs.four_room import FourRoomParallelEnv
