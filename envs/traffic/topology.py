@@ -110,28 +110,51 @@ def read_network(path: str | os.PathLike[str]) -> dict[str, IntersectionLayout]:
 @functools.lru_cache(maxsize=16)
 def _read_network_cached(path: str, mtime_ns: int, size: int) -> tuple[tuple[str, IntersectionLayout], ...]:
     del mtime_ns, size  # cache keys only
+    root = _parse_net(path)
+    edges = _read_edges(root, path)
+    programs = _read_programs(root, path)
+    links, into = _read_connections(root, programs)
+    return tuple((tid, _layout(tid, program, links[tid], into, edges, path)) for tid, program in programs.items())
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """What the layouts need of a network's edges and lanes."""
+
+    function: dict[str, str]
+    """``function`` attribute of every edge (``"normal"`` when absent)."""
+    lane_size: dict[str, tuple[float, float]]
+    """``(length, width)`` of every lane."""
+    pedestrian_lanes: dict[str, list[str]]
+    """The lanes of an edge that pedestrians use (all lanes of walking areas and crossings)."""
+
+
+def _parse_net(path: str) -> ET.Element:
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
         raise ValueError(f"network file {path} is not valid XML: {exc}") from exc
     if root.tag != "net":
         raise ValueError(f"network file {path} is not a SUMO network: root element <{root.tag}>, expected <net>")
+    return root
 
-    function: dict[str, str] = {}
-    lane_size: dict[str, tuple[float, float]] = {}
-    ped_lanes: dict[str, list[str]] = {}
+
+def _read_edges(root: ET.Element, path: str) -> _Edges:
+    edges = _Edges({}, {}, {})
     for edge in root.iter("edge"):
         eid = edge.get("id", "")
-        function[eid] = edge.get("function", "normal")
+        edges.function[eid] = edge.get("function", "normal")
         for lane in edge.iter("lane"):
             lid = lane.get("id", "")
-            lane_size[lid] = (float(lane.get("length", "0")), float(lane.get("width", DEFAULT_LANE_WIDTH_M)))
-            allow = lane.get("allow", "").split()
-            if "pedestrian" in allow or function[eid] in ("walkingarea", "crossing"):
-                ped_lanes.setdefault(eid, []).append(lid)
-    if not function:
+            edges.lane_size[lid] = (float(lane.get("length", "0")), float(lane.get("width", DEFAULT_LANE_WIDTH_M)))
+            if "pedestrian" in lane.get("allow", "").split() or edges.function[eid] in ("walkingarea", "crossing"):
+                edges.pedestrian_lanes.setdefault(eid, []).append(lid)
+    if not edges.function:
         raise ValueError(f"network file {path} contains no edges")
+    return edges
 
+
+def _read_programs(root: ET.Element, path: str) -> dict[str, tuple[tuple[str, float], ...]]:
     programs: dict[str, tuple[tuple[str, float], ...]] = {}
     for logic in root.iter("tlLogic"):
         tid = logic.get("id", "")
@@ -139,49 +162,55 @@ def _read_network_cached(path: str, mtime_ns: int, size: int) -> tuple[tuple[str
             programs[tid] = tuple((ph.get("state", ""), float(ph.get("duration", "0"))) for ph in logic.iter("phase"))
     if not programs:
         raise ValueError(f"network file {path} has no traffic lights (<tlLogic>)")
+    return programs
 
+
+def _read_connections(
+    root: ET.Element, programs: dict[str, tuple[tuple[str, float], ...]]
+) -> tuple[dict[str, list[tuple[int, str, str]]], dict[str, list[str]]]:
+    """``(link index, from edge, from lane)`` of each traffic light's links, and the edges leading into each edge."""
     links: dict[str, list[tuple[int, str, str]]] = {tid: [] for tid in programs}
     into: dict[str, list[str]] = {}
     for con in root.iter("connection"):
         src, dst = con.get("from", ""), con.get("to", "")
-        lane = f"{src}_{con.get('fromLane', '0')}"
         tid = con.get("tl")
         if tid is not None and tid in links:
-            links[tid].append((int(con.get("linkIndex", "-1")), src, lane))
+            links[tid].append((int(con.get("linkIndex", "-1")), src, f"{src}_{con.get('fromLane', '0')}"))
         into.setdefault(dst, []).append(src)
+    return links, into
 
-    layouts = []
-    for tid, program in programs.items():
-        veh_lanes: list[str] = []
-        areas: list[str] = []
-        for _, src, lane in sorted(links[tid]):
-            if function.get(src) == "normal":
-                if lane not in veh_lanes:
-                    veh_lanes.append(lane)
-            elif function.get(src) == "walkingarea" and src not in areas:
-                areas.append(src)
-        veh_edges = list(dict.fromkeys(lane.rsplit("_", 1)[0] for lane in veh_lanes))
-        sidewalks = list(dict.fromkeys(s for a in areas for s in into.get(a, ()) if function.get(s) == "normal"))
-        missing = [lane for lane in veh_lanes if lane not in lane_size]
-        if missing:
-            raise ValueError(f"network file {path}: traffic light {tid} controls unknown lanes {missing}")
-        ped_cap = []
-        for e in sidewalks + areas:
-            lanes = ped_lanes.get(e, [])
-            ped_cap.append(sum(pedestrian_area_capacity(*lane_size[lid]) for lid in lanes) or 1.0)
-        layouts.append(
-            (
-                tid,
-                IntersectionLayout(
-                    tls_id=tid,
-                    vehicle_lanes=tuple(veh_lanes),
-                    vehicle_edges=tuple(veh_edges),
-                    sidewalk_edges=tuple(sidewalks),
-                    waiting_areas=tuple(areas),
-                    vehicle_capacity=tuple(vehicle_lane_capacity(lane_size[lane][0]) for lane in veh_lanes),
-                    pedestrian_capacity=tuple(ped_cap),
-                    phases=program,
-                ),
-            )
-        )
-    return tuple(layouts)
+
+def _layout(
+    tid: str,
+    program: tuple[tuple[str, float], ...],
+    links: list[tuple[int, str, str]],
+    into: dict[str, list[str]],
+    edges: _Edges,
+    path: str,
+) -> IntersectionLayout:
+    veh_lanes: list[str] = []
+    areas: list[str] = []
+    for _, src, lane in sorted(links):
+        if edges.function.get(src) == "normal":
+            if lane not in veh_lanes:
+                veh_lanes.append(lane)
+        elif edges.function.get(src) == "walkingarea" and src not in areas:
+            areas.append(src)
+    missing = [lane for lane in veh_lanes if lane not in edges.lane_size]
+    if missing:
+        raise ValueError(f"network file {path}: traffic light {tid} controls unknown lanes {missing}")
+    sidewalks = list(dict.fromkeys(s for a in areas for s in into.get(a, ()) if edges.function.get(s) == "normal"))
+    pedestrian_capacity = tuple(
+        sum(pedestrian_area_capacity(*edges.lane_size[lid]) for lid in edges.pedestrian_lanes.get(e, [])) or 1.0
+        for e in sidewalks + areas
+    )
+    return IntersectionLayout(
+        tls_id=tid,
+        vehicle_lanes=tuple(veh_lanes),
+        vehicle_edges=tuple(dict.fromkeys(lane.rsplit("_", 1)[0] for lane in veh_lanes)),
+        sidewalk_edges=tuple(sidewalks),
+        waiting_areas=tuple(areas),
+        vehicle_capacity=tuple(vehicle_lane_capacity(edges.lane_size[lane][0]) for lane in veh_lanes),
+        pedestrian_capacity=pedestrian_capacity,
+        phases=program,
+    )
