@@ -79,6 +79,17 @@ def _check_int(name: str, value: Any, low: int) -> int:
     return int(value)
 
 
+def _check_choice(name: str, value: Any, choices: Sequence[Any]) -> None:
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
+
+
+def _check_metres(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not 0.0 <= value < np.inf:
+        raise ValueError(f"{name} must be a number of metres >= 0, got {value!r}")
+    return float(value)
+
+
 class TrafficSignalEnv(ParallelEnv):
     """Traffic lights with vehicles and pedestrians, one agent per light, vector rewards.
 
@@ -196,10 +207,46 @@ class TrafficSignalEnv(ParallelEnv):
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
-        if render_mode not in (None, "human"):
-            raise ValueError(f"render_mode must be None or 'human', got {render_mode!r}")
-        if signal_control not in SIGNAL_CONTROLS:
-            raise ValueError(f"signal_control must be one of {SIGNAL_CONTROLS}, got {signal_control!r}")
+        _check_choice("render_mode", render_mode, (None, "human"))
+        _check_choice("signal_control", signal_control, SIGNAL_CONTROLS)
+        _check_choice("early_change", early_change, EARLY_CHANGES)
+        _check_choice("action_mode", action_mode, ACTION_MODES)
+        self._set_timing(num_seconds, begin_time, delta_time, yellow_time, min_green, max_green)
+        self.early_change = early_change
+        self.approach_zone = _check_metres("approach_zone", approach_zone)
+        if not isinstance(observe_waiting, (bool, np.bool_)):
+            raise ValueError(f"observe_waiting must be True or False, got {observe_waiting!r}")
+        self.observe_waiting = bool(observe_waiting)
+        self.objectives = select_objectives(objectives)
+        self.objective_names = tuple(o.name for o in self.objectives)
+        """The reward components' names, in order."""
+        self.reward_scale = reward_scales(reward_scale, self.objective_names)
+        self.action_mode = action_mode
+        self.signal_control = signal_control
+        self.render_mode = render_mode
+        self.gui = gui or render_mode == "human"
+        self.backend = backend if backend is not None else ("traci" if self.gui else "libsumo")
+        self._set_files(net_file, route_file, actuated_file, additional_files)
+        self.sumo_args = tuple(str(a) for a in sumo_args)
+        self.sumo_warnings = sumo_warnings
+        self._set_intersections()
+        self._sim = SumoSimulation(self.backend, self.gui)  # checks that SUMO is installed; starts nothing
+        self._seed = seed
+        self._rng = np.random.default_rng(seed)
+        self._tmpdir: str | None = None
+        self._finalizer: weakref.finalize | None = None
+        self._route_for_episode: Path | None = None
+        self._api: Any = None
+        self._monitors: list[IntersectionMonitor] = []
+        self._time = 0
+        self._last: list[Measurement] = []
+        self._counts = [0, 0, 0, 0]  # departed vehicles, arrived vehicles, departed persons, arrived persons
+        self.sumo_seed: int | None = None
+        """SUMO seed of the current episode."""
+
+    def _set_timing(
+        self, num_seconds: int, begin_time: int, delta_time: int, yellow_time: int, min_green: int, max_green: int
+    ) -> None:
         self.num_seconds = _check_int("num_seconds", num_seconds, 1)
         self.begin_time = _check_int("begin_time", begin_time, 0)
         self._end = self.begin_time + self.num_seconds
@@ -209,47 +256,29 @@ class TrafficSignalEnv(ParallelEnv):
         self.max_green = _check_int("max_green", max_green, 1)
         if self.min_green > self.max_green:
             raise ValueError(f"min_green ({min_green}) must not exceed max_green ({max_green})")
-        if early_change not in EARLY_CHANGES:
-            raise ValueError(f"early_change must be one of {EARLY_CHANGES}, got {early_change!r}")
-        self.early_change = early_change
-        if (
-            isinstance(approach_zone, bool)
-            or not isinstance(approach_zone, (int, float, np.number))
-            or not 0.0 <= approach_zone < np.inf
-        ):
-            raise ValueError(f"approach_zone must be a number of metres >= 0, got {approach_zone!r}")
-        self.approach_zone = float(approach_zone)
-        if not isinstance(observe_waiting, (bool, np.bool_)):
-            raise ValueError(f"observe_waiting must be True or False, got {observe_waiting!r}")
-        self.observe_waiting = bool(observe_waiting)
-        if action_mode not in ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
-        self.objectives = select_objectives(objectives)
-        self.objective_names = tuple(o.name for o in self.objectives)
-        """The reward components' names, in order."""
-        self.reward_scale = reward_scales(reward_scale, self.objective_names)
-        self.action_mode = action_mode
-        self.signal_control = signal_control
-        self.render_mode = render_mode
-        gui = gui or render_mode == "human"
-        self.backend = backend if backend is not None else ("traci" if gui else "libsumo")
-        self.gui = gui
 
+    def _set_files(
+        self,
+        net_file: str | os.PathLike[str],
+        route_file: str | os.PathLike[str],
+        actuated_file: str | os.PathLike[str] | None,
+        additional_files: Sequence[str | os.PathLike[str]],
+    ) -> None:
         self.net_file = Path(net_file).resolve()
         self.route_file = Path(route_file).resolve()
         if not self.route_file.is_file():
             raise FileNotFoundError(f"route file {self.route_file} does not exist")
         extra = [Path(f).resolve() for f in additional_files]
         self.actuated_file = None if actuated_file is None else Path(actuated_file).resolve()
-        if signal_control == "actuated" and self.actuated_file is not None:
+        if self.signal_control == "actuated" and self.actuated_file is not None:
             extra.insert(0, self.actuated_file)
         for f in extra:
             if not f.is_file():
                 raise FileNotFoundError(f"additional file {f} does not exist")
         self.additional_files = tuple(extra)
-        self.sumo_args = tuple(str(a) for a in sumo_args)
-        self.sumo_warnings = sumo_warnings
 
+    def _set_intersections(self) -> None:
+        """The agents (traffic lights with two green phases or more), their programs, controllers and spaces."""
         self.layouts: dict[str, IntersectionLayout] = {
             tid: lay for tid, lay in read_network(self.net_file).items() if sum(map(is_green, dict(lay.phases))) > 1
         }
@@ -262,44 +291,28 @@ class TrafficSignalEnv(ParallelEnv):
         self.possible_agents: list[str] = list(self.layouts)
         self.agents: list[str] = []
         n_greens = {a: len(self._programs[a].greens) for a in self.possible_agents}
-        n_features = {
-            a: n_greens[a]
-            + 1
-            + (3 if self.observe_waiting else 2) * lay.n_lanes
-            + (len(lay.vehicle_lanes) if self.approach_zone else 0)
+        self.observation_spaces = {
+            a: spaces.Box(0.0, 1.0, shape=(self._n_features(n_greens[a], lay),), dtype=np.float32)
             for a, lay in self.layouts.items()
         }
-        self.observation_spaces = {
-            a: spaces.Box(0.0, 1.0, shape=(n_features[a],), dtype=np.float32) for a in self.possible_agents
-        }
         self.action_spaces = {
-            a: spaces.Discrete(2 if action_mode == "change" else n_greens[a]) for a in self.possible_agents
+            a: spaces.Discrete(2 if self.action_mode == "change" else n_greens[a]) for a in self.possible_agents
         }
         d = len(self.objectives)
         self.reward_spaces = {
             a: spaces.Box(-np.inf, np.inf, shape=(d,), dtype=np.float32) for a in self.possible_agents
         }
-
-        self._sim = SumoSimulation(self.backend, gui)  # checks that SUMO is installed; starts nothing
-        self._seed = seed
-        self._rng = np.random.default_rng(seed)
-        self._tmpdir: str | None = None
-        self._finalizer: weakref.finalize | None = None
-        self._route_for_episode: Path | None = None
-        self._api: Any = None
-        self._monitors: list[IntersectionMonitor] = []
         self._controllers = [
             SignalController(
-                self._programs[a], self.min_green, self.max_green, self.yellow_time, early_change == "defer"
+                self._programs[a], self.min_green, self.max_green, self.yellow_time, self.early_change == "defer"
             )
             for a in self.possible_agents
         ]
         self._lookups = [self._programs[a].lookup() for a in self.possible_agents]
-        self._time = 0
-        self._last: list[Measurement] = []
-        self._counts = [0, 0, 0, 0]  # departed vehicles, arrived vehicles, departed persons, arrived persons
-        self.sumo_seed: int | None = None
-        """SUMO seed of the current episode."""
+
+    def _n_features(self, n_greens: int, layout: IntersectionLayout) -> int:
+        per_lane = 3 if self.observe_waiting else 2
+        return n_greens + 1 + per_lane * layout.n_lanes + (len(layout.vehicle_lanes) if self.approach_zone else 0)
 
     def _check_objectives(self) -> None:
         if any(o.needs_pedestrians for o in self.objectives) and not any(
@@ -361,14 +374,22 @@ class TrafficSignalEnv(ParallelEnv):
         :return: the options.
         """
         args = [
-            "--net-file", str(self.net_file),
-            "--route-files", str(self._episode_route_file()),
-            "--seed", str(int(seed)),
-            "--begin", str(self.begin_time),
-            "--step-length", "1",
-            "--waiting-time-memory", str(max(self.num_seconds, 100)),
-            "--no-step-log", "true",
-            "--duration-log.disable", "true",
+            "--net-file",
+            str(self.net_file),
+            "--route-files",
+            str(self._episode_route_file()),
+            "--seed",
+            str(int(seed)),
+            "--begin",
+            str(self.begin_time),
+            "--step-length",
+            "1",
+            "--waiting-time-memory",
+            str(max(self.num_seconds, 100)),
+            "--no-step-log",
+            "true",
+            "--duration-log.disable",
+            "true",
         ]
         additional = self._additional_files()
         if additional:
@@ -428,8 +449,12 @@ class TrafficSignalEnv(ParallelEnv):
         self._set_state = api.trafficlight.setRedYellowGreenState
         self._simulation_step = api.simulationStep
         sim = api.simulation
-        self._counters = (sim.getDepartedNumber, sim.getArrivedNumber, sim.getDepartedPersonNumber,
-                          sim.getArrivedPersonNumber)
+        self._counters = (
+            sim.getDepartedNumber,
+            sim.getArrivedNumber,
+            sim.getDepartedPersonNumber,
+            sim.getArrivedPersonNumber,
+        )
         emissions = "co2" in self.objective_names
         self._monitors = [
             IntersectionMonitor(api, self.layouts[a], emissions=emissions, approach_zone=self.approach_zone)
@@ -464,46 +489,18 @@ class TrafficSignalEnv(ParallelEnv):
         if not self.agents:
             raise RuntimeError("no episode is running: call reset() first")
         agent_mode = self.signal_control == "agent"
-        time = self._time
-        if agent_mode:
-            acts = [self._checked_action(a, actions) for a in self.possible_agents]
-            apply = SignalController.request if self.action_mode == "phase" else SignalController.act
+        acts = [self._checked_action(a, actions) for a in self.possible_agents] if agent_mode else []
+        agents = self.possible_agents
         try:
-            if agent_mode:
-                for a, ctl, act in zip(self.possible_agents, self._controllers, acts, strict=True):
-                    state = None if act is None else apply(ctl, act, time)
-                    if state is not None:
-                        self._set_state(a, state)
-            n = min(self.delta_time, self._end - time)
-            sim_step = self._simulation_step
-            monitors = self._monitors
-            controllers = self._controllers if agent_mode else ()
-            counters = self._counters
-            counts = self._counts
-            agents = self.possible_agents
-            for _ in range(n):
-                for a, ctl in zip(agents, controllers, strict=False):  # no controllers in program mode
-                    state = ctl.tick(time)
-                    if state is not None:
-                        self._set_state(a, state)
-                sim_step()
-                time += 1
-                self._time = time
-                for mon in monitors:
-                    mon.track()
-                for k in range(4):
-                    counts[k] += counters[k]()
-            measures = [mon.measure() for mon in monitors]
+            self._apply_actions(acts)
+            self._simulate(min(self.delta_time, self._end - self._time), self._controllers if agent_mode else ())
+            measures = [mon.measure() for mon in self._monitors]
             obs = {a: self._observe(i) for i, a in enumerate(agents)}
         except self._sim.errors as exc:
             self._died(exc)
-        rewards = {}
-        objectives, scale = self.objectives, self.reward_scale
-        for i, a in enumerate(agents):
-            prev, cur = self._last[i], measures[i]
-            rewards[a] = (np.array([o.reward(prev, cur) for o in objectives]) * scale).astype(np.float32)
+        rewards = {a: self._reward(prev, cur) for a, prev, cur in zip(agents, self._last, measures, strict=True)}
         self._last = measures
-        done = time >= self._end
+        done = self._time >= self._end
         terminations = dict.fromkeys(agents, False)
         truncations = dict.fromkeys(agents, done)
         infos = {a: self._info(i) for i, a in enumerate(agents)}
@@ -513,6 +510,34 @@ class TrafficSignalEnv(ParallelEnv):
                 infos[a]["episode"] = dict(metrics)
             self.agents = []
         return obs, rewards, terminations, truncations, infos
+
+    def _apply_actions(self, acts: list[int | None]) -> None:
+        """Hand each agent's action (``None``: keep) to its controller and show the state it asks for."""
+        apply = SignalController.request if self.action_mode == "phase" else SignalController.act
+        for a, ctl, act in zip(self.possible_agents, self._controllers, acts, strict=False):  # none in program mode
+            state = None if act is None else apply(ctl, act, self._time)
+            if state is not None:
+                self._set_state(a, state)
+
+    def _simulate(self, n: int, controllers: Sequence[SignalController]) -> None:
+        """Advance SUMO ``n`` seconds, ticking the controllers and tracking the monitors and counters every second."""
+        time, monitors, counters, counts = self._time, self._monitors, self._counters, self._counts
+        sim_step = self._simulation_step
+        for _ in range(n):
+            for a, ctl in zip(self.possible_agents, controllers, strict=False):  # no controllers in program mode
+                state = ctl.tick(time)
+                if state is not None:
+                    self._set_state(a, state)
+            sim_step()
+            time += 1
+            self._time = time
+            for mon in monitors:
+                mon.track()
+            for k in range(4):
+                counts[k] += counters[k]()
+
+    def _reward(self, prev: Measurement, cur: Measurement) -> np.ndarray:
+        return (np.array([o.reward(prev, cur) for o in self.objectives]) * self.reward_scale).astype(np.float32)
 
     def _checked_action(self, agent: str, actions: Mapping[str, Any]) -> int | None:
         """``agent``'s action as an int (``None`` when it has none: it keeps its green)."""
