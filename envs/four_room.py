@@ -316,8 +316,28 @@ class FourRoomParallelEnv(ParallelEnv):
         agents = self.agents
         if not agents:
             raise RuntimeError("no live agents: call reset() before step() (the episode is over or not started)")
-        chosen = []  # validate every action before changing any state
-        for agent in agents:
+        chosen = self._checked_actions(actions)  # every action is validated before any state changes
+        self._t += 1
+        truncate = self._t >= self.max_steps
+        rewards: dict[str, np.ndarray] = {}
+        terminations: dict[str, bool] = {}
+        truncations: dict[str, bool] = {}
+        survivors = []
+        for agent, action in zip(agents, chosen, strict=True):
+            rewards[agent], terminations[agent] = self._advance(self._index[agent], action)
+            truncations[agent] = truncate and not terminations[agent]
+            if not (terminations[agent] or truncate):
+                survivors.append(agent)
+
+        # Observations after every agent has moved, so the "full" flags show this step's collections.
+        observations = {agent: self._observe(self._index[agent]) for agent in agents}
+        infos = {agent: {"collected": self._collected[self._index[agent]].copy()} for agent in agents}
+        self.agents = survivors
+        return observations, rewards, terminations, truncations, infos
+
+    def _checked_actions(self, actions: Mapping[str, int]) -> list[int]:
+        chosen = []
+        for agent in self.agents:
             try:
                 action = actions[agent]
             except KeyError:
@@ -327,41 +347,24 @@ class FourRoomParallelEnv(ParallelEnv):
                     f"invalid action {action!r} for {agent!r}; expected 0 (left), 1 (up), 2 (right), 3 (down)"
                 )
             chosen.append(action)
-        self._t += 1
-        truncate = self._t >= self.max_steps
-        nxt, obj_at, present, cells, goal_cell = self._next, self._obj_at, self._present, self._cells, self._goal_cell
+        return chosen
 
-        rewards: dict[str, np.ndarray] = {}
-        terminations: dict[str, bool] = {}
-        truncations: dict[str, bool] = {}
-        survivors = []
-        for agent, action in zip(agents, chosen, strict=True):
-            i = self._index[agent]
-            cell = nxt[cells[i]][action]
-            cells[i] = cell
-            if cell == goal_cell:
-                rewards[agent] = self.goal_reward.copy()
-                terminations[agent] = True
-                truncations[agent] = False
-                continue
-            k = obj_at[cell]
-            if k >= 0 and present[k]:
-                present[k] = False
-                self._gone[k] = 1
-                self._collected[i][k] = True
-                rewards[agent] = self._object_reward[k].copy()
-            else:
-                rewards[agent] = self._zero_reward.copy()
-            terminations[agent] = False
-            truncations[agent] = truncate
-            if not truncate:
-                survivors.append(agent)
+    def _advance(self, i: int, action: int) -> tuple[np.ndarray, bool]:
+        """Move agent ``i`` and collect the object it enters, if still there.
 
-        # Observations after every agent has moved, so the "full" flags show this step's collections.
-        observations = {agent: self._observe(self._index[agent]) for agent in agents}
-        infos = {agent: {"collected": self._collected[self._index[agent]].copy()} for agent in agents}
-        self.agents = survivors
-        return observations, rewards, terminations, truncations, infos
+        :return: its reward and whether it reached the goal.
+        """
+        cell = self._next[self._cells[i]][action]
+        self._cells[i] = cell
+        if cell == self._goal_cell:
+            return self.goal_reward.copy(), True
+        k = self._obj_at[cell]
+        if k >= 0 and self._present[k]:
+            self._present[k] = False
+            self._gone[k] = 1
+            self._collected[i][k] = True
+            return self._object_reward[k].copy(), False
+        return self._zero_reward.copy(), False
 
     def _observe(self, agent: int) -> np.ndarray:
         cell = self._cells[agent]
