@@ -26,6 +26,13 @@ ALGORITHMS = {"ma-sfols": "ols", "random": "random"}  # --algo -> MASFOLS weight
 def add_parser(sub: Any) -> None:
     """The ``train`` sub-command's arguments."""
     train = sub.add_parser("train", help="build a policy set with MA-SFOLS (or random weights)")
+    _add_run_arguments(train)
+    _add_method_arguments(train.add_argument_group("method (each default: the domain's)"))
+    _add_machine_arguments(train.add_argument_group("machine"))
+
+
+def _add_run_arguments(train: Any) -> None:
+    """What to train: the domain, the algorithm, its budget, seed and run directory."""
     train.add_argument("domain", help="four-room, traffic, or another installed domain")
     train.add_argument(
         "--algo",
@@ -48,44 +55,6 @@ def add_parser(sub: Any) -> None:
     train.add_argument("--out", type=Path, help="run directory (default: runs/<domain>-<algo>-s<seed>)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     train.add_argument(
-        "--ols-batch",
-        choices=list(OLS_BATCHES),
-        help="--algo ma-sfols: how an iteration takes its agents' weights from the OLS queue: top, the highest "
-        "priorities (the paper's Algorithm 1); spread, each next one as if the weights handed out before it in the "
-        "iteration brought no improvement (the agents do not train for nearly the same weight); same, the highest "
-        "one for every agent (they learn beside partners acting for their weight); same-after-extrema, top while "
-        "simplex extrema are queued, same after. Default: the domain's",
-    )
-    train.add_argument(
-        "--value-mode",
-        choices=list(VALUE_MODES),
-        help="how a new policy's value for OLS is measured: joint, the new learners acting together; shared, each "
-        "new policy run by every agent; gpi, the agents acting by GPI over the set and the new policies at the "
-        "learner's weights (SFOLS, GPI-LS). Default: the domain's",
-    )
-    train.add_argument(
-        "--transfer", action="store_true", default=None, help="start new learners from the best policy in the set"
-    )
-    train.add_argument(
-        "--gpi-behaviour",
-        action="store_true",
-        default=None,
-        help="new learners act epsilon-greedily by GPI over the set and themselves (SFOLS's behaviour), not alone",
-    )
-    train.add_argument(
-        "--sharing",
-        choices=list(SHARINGS),
-        help="independent: one learner per agent (the paper); shared: one learner per iteration that every agent "
-        "acts with and feeds (parameter sharing: one weight per iteration). Default: the domain's",
-    )
-    train.add_argument(
-        "--n-envs",
-        type=int,
-        help="train on K copies of the env, each in its own process, stepped together (every learner gets K times "
-        "the transitions per joint step; SB3's n_envs). Default 1",
-    )
-    train.add_argument("--no-progress", action="store_true", help="no progress bars")
-    train.add_argument(
         "--env",
         metavar="KEY=VALUE",
         action="append",
@@ -94,49 +63,95 @@ def add_parser(sub: Any) -> None:
     )
     train.add_argument("--learner", metavar="KEY=VALUE", action="append", default=[], help="override an SFDQN argument")
     train.add_argument("--n-test-weights", type=int, help="test weights of the GPI evaluation (default: the domain's)")
-    train.add_argument(
+
+
+def _add_method_arguments(group: Any) -> None:
+    """The levers of MA-SFOLS + GPI: how weights are handed out, values measured, policies admitted."""
+    group.add_argument(
+        "--ols-batch",
+        choices=list(OLS_BATCHES),
+        help="--algo ma-sfols: how an iteration takes its agents' weights from the OLS queue: top, the highest "
+        "priorities (the paper's Algorithm 1); spread, each next one as if the weights handed out before it in the "
+        "iteration brought no improvement (the agents do not train for nearly the same weight); same, the highest "
+        "one for every agent (they learn beside partners acting for their weight); same-after-extrema, top while "
+        "simplex extrema are queued, same after. Default: the domain's",
+    )
+    group.add_argument(
+        "--value-mode",
+        choices=list(VALUE_MODES),
+        help="how a new policy's value for OLS is measured: joint, the new learners acting together; shared, each "
+        "new policy run by every agent; gpi, the agents acting by GPI over the set and the new policies at the "
+        "learner's weights (SFOLS, GPI-LS). Default: the domain's",
+    )
+    group.add_argument(
+        "--transfer", action="store_true", default=None, help="start new learners from the best policy in the set"
+    )
+    group.add_argument(
+        "--gpi-behaviour",
+        action="store_true",
+        default=None,
+        help="new learners act epsilon-greedily by GPI over the set and themselves (SFOLS's behaviour), not alone",
+    )
+    group.add_argument(
+        "--sharing",
+        choices=list(SHARINGS),
+        help="independent: one learner per agent (the paper); shared: one learner per iteration that every agent "
+        "acts with and feeds (parameter sharing: one weight per iteration). Default: the domain's",
+    )
+    group.add_argument(
         "--validation-weights",
         type=int,
         metavar="N",
         help="a new policy joins the set only if GPI does at least as well with it on the simplex extrema and N "
         "Dirichlet(1) validation weights (0: every new policy joins; default: the domain's; not for --algo fixed)",
     )
-    train.add_argument(
+    group.add_argument(
         "--prune",
         action=argparse.BooleanOptionalAction,
         help="after every iteration, also retire from the set the policies without which GPI does better on the "
         "validation weights (needs validation weights; default: the domain's)",
     )
-    train.add_argument(
+    group.add_argument(
         "--admit-together",
         action=argparse.BooleanOptionalAction,
         help="after an iteration's policies were validated one by one, also try those left out together: they join "
         "the set if GPI does at least as well with them all (needs validation weights; default: the domain's)",
     )
-    train.add_argument(
+    group.add_argument(
         "--replan",
         action=argparse.BooleanOptionalAction,
         help="old policies keep learning: after every iteration, plan every policy of the set again, for its own "
         "weights, on every transition the run has recorded (tabular learners; default: the domain's)",
     )
-    train.add_argument(
+
+
+def _add_machine_arguments(group: Any) -> None:
+    """Where and how the run executes; none of these changes what is learned."""
+    group.add_argument(
+        "--n-envs",
+        type=int,
+        help="train on K copies of the env, each in its own process, stepped together (every learner gets K times "
+        "the transitions per joint step; SB3's n_envs). Default 1",
+    )
+    group.add_argument(
         "--torch-threads",
         type=int,
         default=1,
         help="torch threads of the training process (default 1: the networks are small, and more threads only "
         "contend with the simulator and the evaluation workers)",
     )
-    train.add_argument(
+    group.add_argument(
         "--device",
         default="auto",
         help="where the learners run: auto (tables on the CPU, MLPs on CUDA where there is one), cpu, cuda, cuda:N",
     )
-    train.add_argument(
+    group.add_argument(
         "--eval-workers",
         type=int,
         help="evaluate GPI in this many worker processes, each with its own env (0: in the training process; "
         "default: the domain's)",
     )
+    group.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def run(args: argparse.Namespace) -> int:
