@@ -51,6 +51,12 @@ def _add_run_arguments(train: Any) -> None:
     )
     train.add_argument("--iterations", type=int, help="maximum number of iterations (default: the domain's)")
     train.add_argument("--steps-per-iteration", type=int, help="joint env steps per iteration (default: the domain's)")
+    train.add_argument(
+        "--n-envs",
+        type=int,
+        help="train on K copies of the env, each in its own process, stepped together (every learner gets K times "
+        "the transitions per joint step; SB3's n_envs). Default 1",
+    )
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--out", type=Path, help="run directory (default: runs/<domain>-<algo>-s<seed>)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
@@ -126,13 +132,7 @@ def _add_method_arguments(group: Any) -> None:
 
 
 def _add_machine_arguments(group: Any) -> None:
-    """Where and how the run executes; none of these changes what is learned."""
-    group.add_argument(
-        "--n-envs",
-        type=int,
-        help="train on K copies of the env, each in its own process, stepped together (every learner gets K times "
-        "the transitions per joint step; SB3's n_envs). Default 1",
-    )
+    """Where the run executes: threads, device, evaluation workers, progress bars."""
     group.add_argument(
         "--torch-threads",
         type=int,
