@@ -96,7 +96,7 @@ def replan(policy_set: GPIPolicy, model: SFDQN, experience: Experience | None) -
     return experience
 
 
-def main(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seed", type=int, default=0, help="seed of the learners (iteration i uses seed + i)")
     parser.add_argument("--steps-per-iteration", type=int, default=50_000, help="SFDQN env steps for each weight")
@@ -112,7 +112,32 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--replan", action="store_true", help="plan every policy again on all the transitions so far, every iteration"
     )
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def make_learner(args: argparse.Namespace, w: np.ndarray, iteration: int) -> SFDQN:
+    """A fresh tabular SF learner for weight ``w`` (the paper's Table 1 for α, γ, ε)."""
+    return SFDQN(
+        "TabularPolicy",
+        make_four_room(),
+        weights=w,
+        learning_rate=ALPHA,
+        gamma=GAMMA,
+        buffer_size=args.steps_per_iteration,
+        learning_starts=100,
+        batch_size=args.batch_size,
+        train_freq=args.train_freq,
+        exploration_fraction=args.exploration_fraction,
+        exploration_initial_eps=1.0,
+        exploration_final_eps=EPSILON,
+        planning_sweeps=args.planning_sweeps,
+        optimistic_init=args.optimistic_init,
+        seed=args.seed + iteration,
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
     th.set_num_threads(1)  # tiny tensors: threads only add overhead
 
     env = make_four_room()
@@ -133,23 +158,7 @@ def main(argv: list[str] | None = None) -> None:
         w = ols.next_weight()
         if w is None:
             break
-        model = SFDQN(
-            "TabularPolicy",
-            make_four_room(),
-            weights=w,
-            learning_rate=ALPHA,
-            gamma=GAMMA,
-            buffer_size=args.steps_per_iteration,
-            learning_starts=100,
-            batch_size=args.batch_size,
-            train_freq=args.train_freq,
-            exploration_fraction=args.exploration_fraction,
-            exploration_initial_eps=1.0,
-            exploration_final_eps=EPSILON,
-            planning_sweeps=args.planning_sweeps,
-            optimistic_init=args.optimistic_init,
-            seed=args.seed + iteration,
-        )
+        model = make_learner(args, w, iteration)
         model.learn(args.steps_per_iteration)
         if args.replan:
             experience = replan(policy_set, model, experience)

@@ -7,8 +7,11 @@ learner from above), and GPI's curve does not fall as Π grows.
 
 from __future__ import annotations
 
+import re
+
 import gymnasium as gym
 import numpy as np
+from example_scripts import load_example
 from sfgpi_envs.four_room_optimum import FourRoomOptimum
 from sfgpi_envs.mo_four_room import make_four_room
 
@@ -56,3 +59,12 @@ def test_sfols_gpi_reaches_the_exact_optimum_and_its_curve_does_not_fall():
     assert curve[-1] >= 0.99 * exact, f"GPI {curve} against the exact optimum {exact}"
     # GPI over lower-bound SFs need not rise at every iteration; it must end at its best (within 0.5%).
     assert curve[-1] >= max(curve) - 0.005 * exact, f"GPI fell as Π grew: {curve}"
+
+
+def test_the_example_prints_gpi_against_the_exact_optimum(capsys):
+    example = load_example("sfols_four_room")
+    example.main(["--steps-per-iteration", "3000", "--max-iterations", "2", "--eval-episodes", "1"])
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    match = re.search(r"stopped after 2 iterations; \d+ corner weights left .*GPI / exact optimum = ([0-9.]+)", last)
+    assert match, last
+    assert 0.5 < float(match.group(1)) <= 1.0, last  # two single-objective policies: well above random, not optimal
