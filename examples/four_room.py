@@ -32,6 +32,9 @@ from sb3_sfgpi.plots import align_runs, ols_ended
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.sweep import RunSpec, run_sweep
 
+ALGORITHMS = ("ma-sfols", "random")
+"""The two curves of Fig. 4."""
+
 
 def train(args: argparse.Namespace, specs: list[RunSpec]) -> list[Path]:
     """Train (or continue) the runs as one sweep; their directories, in order."""
@@ -60,6 +63,21 @@ def shared_title(sharing: str | None) -> str:
 
 
 def main() -> None:
+    args = parse_args()
+    extra = run_options(args)
+    jobs = [(algo, seed) for seed in args.seeds for algo in ALGORITHMS]
+    specs = [RunSpec("four-room", algo, seed, options=tuple(extra), name=f"{algo}-s{seed}") for algo, seed in jobs]
+    trained = train(args, [*specs, *apriori_specs(args, extra)])
+    runs, apriori = trained[: len(specs)], trained[len(specs) :]
+    plot(args, runs, apriori)
+    by_algo = {algo: [run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo] for algo in ALGORITHMS}
+    print_curves(by_algo, apriori)
+    if apriori:
+        for algo, algo_runs in by_algo.items():
+            print_per_weight(algo_runs, apriori, algo)
+
+
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--out", type=Path, default=Path("runs/fig4"))
@@ -73,8 +91,11 @@ def main() -> None:
     parser.add_argument(
         "--env", metavar="KEY=VALUE", action="append", default=[], help="env override, e.g. observation_mode=xy"
     )
-    args = parser.parse_args()
+    return parser.parse_args()
 
+
+def run_options(args: argparse.Namespace) -> list[str]:
+    """The ``sb3-sfgpi train`` options every run of the figure shares."""
     extra = [f"--env={item}" for item in args.env]
     if args.iterations:
         extra += ["--iterations", str(args.iterations)]
@@ -82,40 +103,32 @@ def main() -> None:
         extra += ["--steps-per-iteration", str(args.steps_per_iteration)]
     if args.sharing:
         extra += ["--sharing", args.sharing]
-    jobs = [(algo, seed) for seed in args.seeds for algo in ("ma-sfols", "random")]
-    specs = [RunSpec("four-room", algo, seed, options=tuple(extra), name=f"{algo}-s{seed}") for algo, seed in jobs]
-    trained = train(args, [*specs, *apriori_specs(args, extra)])
-    runs, apriori = trained[: len(specs)], trained[len(specs) :]
+    return extra
 
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "sb3_sfgpi.cli",
-            "plot",
-            *map(str, runs),
-            "-o",
-            str(args.figure),
-            *(["--fixed", *map(str, apriori)] if apriori else []),
-            "--title",
-            f"Four-Room, {observation_mode(args.env)} observations{shared_title(args.sharing)}: GPI return over 12 "
-            "test weights, both agents",
-        ],
-        check=True,
+
+def plot(args: argparse.Namespace, runs: list[Path], apriori: list[Path]) -> None:
+    """Draw the figure with ``sb3-sfgpi plot``, the a-priori learners as reference lines."""
+    title = (
+        f"Four-Room, {observation_mode(args.env)} observations{shared_title(args.sharing)}: GPI return over 12 "
+        "test weights, both agents"
     )
-    print(
-        "\n| algorithm | "
-        + " | ".join(f"it {i}" for i in range(1, 1 + max_iterations(runs)))
-        + " | 95% at | wall time (s) |"
-    )
+    fixed = ["--fixed", *map(str, apriori)] if apriori else []
+    plot_cli = [sys.executable, "-m", "sb3_sfgpi.cli", "plot", *map(str, runs), "-o", str(args.figure)]
+    subprocess.run([*plot_cli, *fixed, "--title", title], check=True)
+
+
+def print_curves(by_algo: dict[str, list[Path]], apriori: list[Path]) -> None:
+    """The table of GPI's mean ± std per iteration of each algorithm, and its end against the a-priori learners."""
+    n_iterations = max(max_iterations(runs) for runs in by_algo.values())
+    columns = " | ".join(f"it {i}" for i in range(1, 1 + n_iterations))
+    print(f"\n| algorithm | {columns} | 95% at | wall time (s) |")
     reference = a_priori_reference(apriori) if apriori else None
-    for algo in ("ma-sfols", "random"):
-        algo_runs = [run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo]
+    for algo, algo_runs in by_algo.items():
         rows = [read_rows(run) for run in algo_runs]
         ended = [ols_ended(RunDirectory(run)) for run in algo_runs]
         curves = align_runs([{int(r["iteration"]): float(r["mean_return"]) for r in rs} for rs in rows], ended)
         # Runs whose OLS ended early keep their final set to the common length; others stop where they stopped.
-        pad = max_iterations(runs) - curves.shape[1]
+        pad = n_iterations - curves.shape[1]
         curves = np.array([extend(row, pad, done) for row, done in zip(curves, ended, strict=True)])
         mean, std = np.nanmean(curves, axis=0), np.nanstd(curves, axis=0)
         wall = np.mean([float(rs[-1]["wall_time"]) for rs in rows])
@@ -125,8 +138,6 @@ def main() -> None:
             print(f"  final / a priori: {mean[-1] / reference.mean:.3f}")
     if reference is not None:
         print(f"{reference.label}: {reference.mean:.3f} ± {reference.std:.3f}")
-        for algo in ("ma-sfols", "random"):
-            print_per_weight([run for run, (a, _) in zip(runs, jobs, strict=True) if a == algo], apriori, algo)
 
 
 def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
