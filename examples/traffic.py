@@ -60,79 +60,93 @@ def _tag(w: list[float]) -> str:
     return "-".join(f"{x:g}" for x in w)
 
 
-def checks(compare: dict) -> list[tuple[str, bool, str]]:
+VEHICLE_WAIT, PEDESTRIAN_WAIT = "vehicle_waiting_time_mean", "pedestrian_waiting_time_mean"
+Check = tuple[str, bool, str]
+"""A claim, whether it holds, and the numbers behind it."""
+
+
+def checks(compare: dict) -> list[Check]:
     """The section's claims, each as (claim, holds, numbers), from a comparison file of the traffic domain."""
     rows = compare["rows"]
-    veh, ped = "vehicle_waiting_time_mean", "pedestrian_waiting_time_mean"
     gpi = {tuple(np.round(r["weights"], 6)): r for r in rows if r["method"] == "gpi"}
     baseline = {r["label"]: r for r in rows if r["method"] == "baseline"}
+    fixed = [(r, gpi[w]) for r in rows if r["method"] == "fixed" and (w := tuple(np.round(r["weights"], 6))) in gpi]
+    return [
+        *trend_checks(gpi),
+        *baseline_checks(gpi, baseline),
+        *[check for row, match in fixed for check in scalarised_checks(row, match)],
+    ]
 
-    def metric(row: dict, key: str) -> float:
-        return row["episode_metrics"][key]["mean"]
 
+def metric(row: dict, key: str) -> float:
+    """The mean over episodes of one of a comparison row's episode metrics."""
+    return row["episode_metrics"][key]["mean"]
+
+
+def trend_checks(gpi: dict[tuple, dict]) -> list[Check]:
+    """Pedestrians wait less and vehicles more as the pedestrian weight grows: on the three main weights, then all."""
     results = []
     for weights, strict in (([(1.0, 0.0), (0.5, 0.5), (0.0, 1.0)], True), (sorted(gpi, key=lambda w: w[1]), False)):
         order = [w for w in weights if w in gpi]  # increasing pedestrian weight
         if len(order) < 2:
             continue
-        peds = [metric(gpi[w], ped) for w in order]
-        vehs = [metric(gpi[w], veh) for w in order]
         scope = "w in {[1,0], [0.5,0.5], [0,1]}" if strict else f"all {len(order)} weights (noise: 1 std ≈ 0.5 s)"
-        results.append(
-            (
-                f"GPI pedestrian waiting decreases as w1 grows, {scope}",
-                bool(np.all(np.diff(peds) < 0)),
-                ", ".join(f"w1={w[1]:g}: {p:.2f}" for w, p in zip(order, peds, strict=True)),
+        for key, name, trend, sign in (
+            (PEDESTRIAN_WAIT, "pedestrian", "decreases", -1),
+            (VEHICLE_WAIT, "vehicle", "increases", 1),
+        ):
+            values = [metric(gpi[w], key) for w in order]
+            results.append(
+                (
+                    f"GPI {name} waiting {trend} as w1 grows, {scope}",
+                    bool(np.all(sign * np.diff(values) > 0)),
+                    ", ".join(f"w1={w[1]:g}: {v:.2f}" for w, v in zip(order, values, strict=True)),
+                )
             )
-        )
-        results.append(
-            (
-                f"GPI vehicle waiting increases as w1 grows, {scope}",
-                bool(np.all(np.diff(vehs) > 0)),
-                ", ".join(f"w1={w[1]:g}: {v:.2f}" for w, v in zip(order, vehs, strict=True)),
-            )
-        )
+    return results
+
+
+def baseline_checks(gpi: dict[tuple, dict], baseline: dict[str, dict]) -> list[Check]:
+    """GPI at the simplex extrema against SUMO's fixed-time and actuated programs."""
+    results = []
     if "fixed-time" in baseline:
         fixed_time = baseline["fixed-time"]
-        for w, key, name in (((1.0, 0.0), veh, "vehicles"), ((0.0, 1.0), ped, "pedestrians")):
+        for w, key, name in (((1.0, 0.0), VEHICLE_WAIT, "vehicles"), ((0.0, 1.0), PEDESTRIAN_WAIT, "pedestrians")):
             if w in gpi:
                 ours, theirs = metric(gpi[w], key), metric(fixed_time, key)
-                claim = f"GPI at w={list(w)} beats fixed-time on {name}"
-                results.append((claim, ours < theirs, f"{ours:.2f} vs {theirs:.2f} s"))
+                results.append(
+                    (f"GPI at w={list(w)} beats fixed-time on {name}", ours < theirs, f"{ours:.2f} vs {theirs:.2f} s")
+                )
         if (0.0, 1.0) in gpi:
-            ours, theirs = metric(gpi[(0.0, 1.0)], ped), metric(fixed_time, ped)
+            ours, theirs = metric(gpi[(0.0, 1.0)], PEDESTRIAN_WAIT), metric(fixed_time, PEDESTRIAN_WAIT)
             claim = "GPI at w=[0, 1] keeps pedestrians waiting at most half as long as fixed-time"
             results.append((claim, ours <= theirs / 2, f"{ours:.2f} vs {theirs:.2f} s"))
     if "actuated" in baseline and (1.0, 0.0) in gpi:
-        ours, theirs = metric(gpi[(1.0, 0.0)], veh), metric(baseline["actuated"], veh)
-        results.append(("GPI at w=[1, 0] keeps vehicles waiting no longer than actuated", ours <= theirs,
-                        f"{ours:.2f} vs {theirs:.2f} s"))  # fmt: skip
-    for row in rows:
-        if row["method"] != "fixed":
-            continue
-        match = gpi.get(tuple(np.round(row["weights"], 6)))
-        if match is None:
-            continue
-        ours, theirs = match["scalarized_discounted"], row["scalarized_discounted"]
-        gap = (theirs - ours) / abs(theirs)
-        results.append(
-            (
-                f"GPI within 5% of the scalarised learner's w·return at w={row['weights']}",
-                bool(gap <= 0.05),
-                f"{ours:.4f} vs {theirs:.4f} (GPI {'below' if gap > 0 else 'above'} by {abs(gap):.1%})",
-            )
-        )
-        w = np.asarray(row["weights"])
-        cost_ours = float(w @ [metric(match, veh), metric(match, ped)])
-        cost_theirs = float(w @ [metric(row, veh), metric(row, ped)])
-        results.append(
-            (
-                f"GPI within 5% of the scalarised learner's w·(mean waiting) at w={row['weights']}",
-                bool(cost_ours <= 1.05 * cost_theirs),
-                f"{cost_ours:.2f} vs {cost_theirs:.2f} s",
-            )
-        )
+        ours, theirs = metric(gpi[(1.0, 0.0)], VEHICLE_WAIT), metric(baseline["actuated"], VEHICLE_WAIT)
+        claim = "GPI at w=[1, 0] keeps vehicles waiting no longer than actuated"
+        results.append((claim, ours <= theirs, f"{ours:.2f} vs {theirs:.2f} s"))
     return results
+
+
+def scalarised_checks(row: dict, match: dict) -> list[Check]:
+    """GPI within 5% of the learner trained a priori for the same weight, in w·return and in w·(mean waiting)."""
+    ours, theirs = match["scalarized_discounted"], row["scalarized_discounted"]
+    gap = (theirs - ours) / abs(theirs)
+    w = np.asarray(row["weights"])
+    cost_ours = float(w @ [metric(match, VEHICLE_WAIT), metric(match, PEDESTRIAN_WAIT)])
+    cost_theirs = float(w @ [metric(row, VEHICLE_WAIT), metric(row, PEDESTRIAN_WAIT)])
+    return [
+        (
+            f"GPI within 5% of the scalarised learner's w·return at w={row['weights']}",
+            bool(gap <= 0.05),
+            f"{ours:.4f} vs {theirs:.4f} (GPI {'below' if gap > 0 else 'above'} by {abs(gap):.1%})",
+        ),
+        (
+            f"GPI within 5% of the scalarised learner's w·(mean waiting) at w={row['weights']}",
+            bool(cost_ours <= 1.05 * cost_theirs),
+            f"{cost_ours:.2f} vs {cost_theirs:.2f} s",
+        ),
+    ]
 
 
 def env_speed(episodes: int = 3, seed: int = 0) -> float:
