@@ -206,8 +206,11 @@ def _make_pool(workers: int, num_seconds: int):
 
 
 def run(quick: bool = False) -> list[Row]:
-    rows = []
-    # 1. env vs raw libsumo -------------------------------------------------------------------------------------
+    return [_env_row(quick), _parallel_evaluation_row(quick)]
+
+
+def _env_row(quick: bool) -> Row:
+    """The env against raw libsumo replaying the same episode: same states set, same queries."""
     num_seconds, delta_time = (200, 5) if quick else (500, 5)
     repeats = 3 if quick else 7
     actions = np.random.default_rng(0).integers(0, 2, size=(num_seconds // delta_time + 1, 3))
@@ -229,19 +232,20 @@ def run(quick: bool = False) -> list[Row]:
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     ratio = t_raw / t_env
-    rows.append(
-        Row(
-            "traffic env",
-            f"3 intersections, {num_seconds} s episodes, delta_time {delta_time} s",
-            fmt_rate(n_env / t_env, "decisions"),
-            fmt_rate(n_raw / t_raw, "decisions"),
-            ratio,
-            f"≥ {TARGET}×",
-            ratio >= TARGET,
-            f"baseline: raw libsumo, same states and queries; median of {repeats} interleaved episodes",
-        )
+    return Row(
+        "traffic env",
+        f"3 intersections, {num_seconds} s episodes, delta_time {delta_time} s",
+        fmt_rate(n_env / t_env, "decisions"),
+        fmt_rate(n_raw / t_raw, "decisions"),
+        ratio,
+        f"≥ {TARGET}×",
+        ratio >= TARGET,
+        f"baseline: raw libsumo, same states and queries; median of {repeats} interleaved episodes",
     )
-    # 2. parallel evaluation -----------------------------------------------------------------------------------
+
+
+def _parallel_evaluation_row(quick: bool) -> Row:
+    """Fixed-time episodes in a pool of two worker processes against one."""
     eval_seconds = 200 if quick else 500
     n_episodes = 4 if quick else 8
     pools = {workers: _make_pool(workers, eval_seconds) for workers in (1, 2)}
@@ -258,16 +262,13 @@ def run(quick: bool = False) -> list[Row]:
         for pool in pools.values():
             pool.close()
     t1, t2 = float(np.median(samples[1])), float(np.median(samples[2]))
-    rows.append(
-        Row(
-            "parallel evaluation",
-            f"fixed-time episodes ({eval_seconds} s), 2 processes vs 1",
-            fmt_rate(n_episodes / t2, "episodes"),
-            fmt_rate(n_episodes / t1, "episodes"),
-            t1 / t2,
-            "",
-            None,
-            f"{name}; {n_episodes} episodes per sample, warm pools, median of {len(samples[1])}",
-        )
+    return Row(
+        "parallel evaluation",
+        f"fixed-time episodes ({eval_seconds} s), 2 processes vs 1",
+        fmt_rate(n_episodes / t2, "episodes"),
+        fmt_rate(n_episodes / t1, "episodes"),
+        t1 / t2,
+        "",
+        None,
+        f"{name}; {n_episodes} episodes per sample, warm pools, median of {len(samples[1])}",
     )
-    return rows
