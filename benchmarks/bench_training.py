@@ -219,7 +219,11 @@ def run(quick: bool = False) -> list[Row]:
 
 def run_mlp(quick: bool = False) -> list[Row]:
     """MLP SFDQN vs SB3's DQN, and the candidate one-pass TD update vs the current one."""
-    rows = []
+    return [_mlp_against_dqn_row(quick), *_td_update_rows(quick)]
+
+
+def _mlp_against_dqn_row(quick: bool) -> Row:
+    """Training steps per second of MLP SFDQN against SB3's DQN on the scalarised env, chunks interleaved."""
     repeats = 5 if quick else 21
     chunk = 200 if quick else 300
 
@@ -237,24 +241,26 @@ def run_mlp(quick: bool = False) -> list[Row]:
     times = _median(samples)
     ratio, q1, q3 = paired_ratio(samples, "dqn", "sfdqn")
     one_pass = paired_ratio(samples, "dqn", "one-pass")[0]
-    rows.append(
-        Row(
-            "training",
-            "MLP SFDQN vs SB3 DQN, four-room-v0",
-            fmt_rate(chunk / times["sfdqn"], "steps"),
-            fmt_rate(chunk / times["dqn"], "steps"),
-            ratio,
-            f"≥ {TARGET_DQN}×",
-            ratio >= TARGET_DQN,
-            f"per-round ratios: quartiles {q1:.2f}–{q3:.2f}; with the one-pass TD update: {one_pass:.2f}× DQN; "
-            f"{repeats} interleaved chunks of {chunk} steps",
-        )
+    return Row(
+        "training",
+        "MLP SFDQN vs SB3 DQN, four-room-v0",
+        fmt_rate(chunk / times["sfdqn"], "steps"),
+        fmt_rate(chunk / times["dqn"], "steps"),
+        ratio,
+        f"≥ {TARGET_DQN}×",
+        ratio >= TARGET_DQN,
+        f"per-round ratios: quartiles {q1:.2f}–{q3:.2f}; with the one-pass TD update: {one_pass:.2f}× DQN; "
+        f"{repeats} interleaved chunks of {chunk} steps",
     )
-    # The TD update alone, on one filled buffer: one online pass over [s, s'] vs two passes (current).
+
+
+def _td_update_rows(quick: bool) -> list[Row]:
+    """The TD update alone, on one filled buffer: one online pass over [s, s'] vs two passes (current)."""
     model = _silent(SFDQN("MlpPolicy", four_room(), weights=WEIGHTS, seed=0, **MLP_KWARGS))
     model.learn(500)
     current, candidate = model.policy, copy.deepcopy(model.policy)
     candidate.__class__ = OnePassPolicy
+    rows = []
     for batch in (32, 64, 256):
         samples = interleaved_samples(
             {
