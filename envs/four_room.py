@@ -159,8 +159,23 @@ class FourRoomParallelEnv(ParallelEnv):
             )
         self.render_mode: str | None = render_mode
 
-        # Spaces, built once: the *_space(agent) methods return these same objects.
-        nvec = [HEIGHT, WIDTH] + ([2] * N_OBJECTS if observation_mode != "xy" else [])
+        self._build_spaces()
+        self._build_tables()
+
+        # Episode state (reset() restores it).
+        self._cells: list[int] = [r * WIDTH + c for r, c in self.starts]
+        self._present: list[bool] = [True] * N_OBJECTS
+        self._gone = np.zeros(N_OBJECTS, dtype=np.int64)  # the "full" observation's flags
+        self._collected: list[np.ndarray] = [np.zeros(N_OBJECTS, dtype=bool) for _ in self.possible_agents]
+        self._t: int = 0
+
+        self._background: np.ndarray | None = None
+        self._masks: dict[str, np.ndarray] | None = None
+
+    # ------------------------------------------------------------------ validation / tables
+    def _build_spaces(self) -> None:
+        """The spaces, built once: the ``*_space(agent)`` methods return these same objects."""
+        nvec = [HEIGHT, WIDTH] + ([2] * N_OBJECTS if self.observation_mode != "xy" else [])
         self.observation_spaces: dict[str, spaces.MultiDiscrete] = {
             agent: spaces.MultiDiscrete(nvec, dtype=np.int64) for agent in self.possible_agents
         }
@@ -172,7 +187,8 @@ class FourRoomParallelEnv(ParallelEnv):
             for agent in self.possible_agents
         }
 
-        # Flat tables for the hot loop: a cell is the int row * WIDTH + col.
+    def _build_tables(self) -> None:
+        """Flat tables for the hot loop: a cell is the int ``row * WIDTH + col``."""
         n_cells = HEIGHT * WIDTH
         self._next: tuple[tuple[int, ...], ...] = tuple(
             tuple(self._move(cell, action) for action in range(4)) for cell in range(n_cells)
@@ -189,17 +205,6 @@ class FourRoomParallelEnv(ParallelEnv):
         self._object_reward: tuple[np.ndarray, ...] = tuple(eye[t] for t in OBJECT_TYPES)
         self._zero_reward = np.zeros(N_OBJECTIVES, dtype=np.float32)
 
-        # Episode state (reset() restores it).
-        self._cells: list[int] = [r * WIDTH + c for r, c in self.starts]
-        self._present: list[bool] = [True] * N_OBJECTS
-        self._gone = np.zeros(N_OBJECTS, dtype=np.int64)  # the "full" observation's flags
-        self._collected: list[np.ndarray] = [np.zeros(N_OBJECTS, dtype=bool) for _ in self.possible_agents]
-        self._t: int = 0
-
-        self._background: np.ndarray | None = None
-        self._masks: dict[str, np.ndarray] | None = None
-
-    # ------------------------------------------------------------------ validation / tables
     def _check_starts(
         self, starts: Sequence[tuple[int, int]] | Mapping[str, tuple[int, int]] | None
     ) -> tuple[tuple[int, int], ...]:
