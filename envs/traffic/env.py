@@ -374,23 +374,15 @@ class TrafficSignalEnv(ParallelEnv):
         :return: the options.
         """
         args = [
-            "--net-file",
-            str(self.net_file),
-            "--route-files",
-            str(self._episode_route_file()),
-            "--seed",
-            str(int(seed)),
-            "--begin",
-            str(self.begin_time),
-            "--step-length",
-            "1",
-            "--waiting-time-memory",
-            str(max(self.num_seconds, 100)),
-            "--no-step-log",
-            "true",
-            "--duration-log.disable",
-            "true",
-        ]
+            "--net-file", str(self.net_file),
+            "--route-files", str(self._episode_route_file()),
+            "--seed", str(int(seed)),
+            "--begin", str(self.begin_time),
+            "--step-length", "1",
+            "--waiting-time-memory", str(max(self.num_seconds, 100)),
+            "--no-step-log", "true",
+            "--duration-log.disable", "true",
+        ]  # fmt: skip
         additional = self._additional_files()
         if additional:
             args += ["--additional-files", ",".join(str(f) for f in additional)]
@@ -449,12 +441,8 @@ class TrafficSignalEnv(ParallelEnv):
         self._set_state = api.trafficlight.setRedYellowGreenState
         self._simulation_step = api.simulationStep
         sim = api.simulation
-        self._counters = (
-            sim.getDepartedNumber,
-            sim.getArrivedNumber,
-            sim.getDepartedPersonNumber,
-            sim.getArrivedPersonNumber,
-        )
+        self._counters = (sim.getDepartedNumber, sim.getArrivedNumber, sim.getDepartedPersonNumber,
+                          sim.getArrivedPersonNumber)  # fmt: skip
         emissions = "co2" in self.objective_names
         self._monitors = [
             IntersectionMonitor(api, self.layouts[a], emissions=emissions, approach_zone=self.approach_zone)
@@ -492,7 +480,8 @@ class TrafficSignalEnv(ParallelEnv):
         acts = [self._checked_action(a, actions) for a in self.possible_agents] if agent_mode else []
         agents = self.possible_agents
         try:
-            self._apply_actions(acts)
+            if agent_mode:
+                self._apply_actions(acts)
             self._simulate(min(self.delta_time, self._end - self._time), self._controllers if agent_mode else ())
             measures = [mon.measure() for mon in self._monitors]
             obs = {a: self._observe(i) for i, a in enumerate(agents)}
@@ -514,7 +503,7 @@ class TrafficSignalEnv(ParallelEnv):
     def _apply_actions(self, acts: list[int | None]) -> None:
         """Hand each agent's action (``None``: keep) to its controller and show the state it asks for."""
         apply = SignalController.request if self.action_mode == "phase" else SignalController.act
-        for a, ctl, act in zip(self.possible_agents, self._controllers, acts, strict=False):  # none in program mode
+        for a, ctl, act in zip(self.possible_agents, self._controllers, acts, strict=True):
             state = None if act is None else apply(ctl, act, self._time)
             if state is not None:
                 self._set_state(a, state)
