@@ -20,7 +20,7 @@ from stable_baselines3.common.type_aliases import MaybeCallback
 from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, PolicyValidation, ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.multiagent import SHARED, MultiAgentRunner, default_learner_factory
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.schedules import make_schedule
 
@@ -64,7 +64,7 @@ def acts_by_own_policies(fixed: bool, sharing: str) -> bool:
     Whether each agent of a run is evaluated by GPI over the policies it learned itself: fixed weights (a priori
     scalarised learners) with one learner per agent. Otherwise every agent acts by GPI over the whole set.
     """
-    return fixed and sharing == "independent"
+    return fixed and sharing != SHARED
 
 
 class MASFOLS:
@@ -109,7 +109,9 @@ class MASFOLS:
     :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (every iteration
         trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
         learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the
-        agents' transitions; for many homogeneous agents). See :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`
+        agents' transitions; for many homogeneous agents); ``"experience"``: one learner per agent, for its own
+        weights, that also stores every other agent's transitions (experience sharing). See
+        :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`
     :param n_envs: train on this many copies of the env, each in its own process (``env_fn``), stepped together: a
         learner has a slot per agent and copy. An iteration's ``steps_per_iteration`` joint steps then give
         ``n_envs`` times as many transitions. 1: train on ``env`` (evaluations always run on ``env``)

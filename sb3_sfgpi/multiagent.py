@@ -141,14 +141,29 @@ def _replaced(rows: np.ndarray, slots: list[int], values: np.ndarray) -> np.ndar
 
 #: The name of the one learner all agents share (``sharing="shared"``).
 SHARED = "shared"
-#: How agents get their learners: one each, or one for all (:class:`MultiAgentRunner`'s ``sharing``).
-SHARINGS = ("independent", SHARED)
+#: One learner per agent, each also storing every other agent's transitions (``sharing="experience"``).
+EXPERIENCE = "experience"
+#: How agents get their learners: one each, one each fed by all, or one for all (:class:`MultiAgentRunner`'s
+#: ``sharing``).
+SHARINGS = ("independent", EXPERIENCE, SHARED)
+
+
+class Rows(NamedTuple):
+    """Transitions as a replay buffer's ``add_rows`` takes them."""
+
+    obs: np.ndarray
+    next_obs: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    dones: np.ndarray
+    timeouts: np.ndarray
 
 
 class MultiAgentRunner:
     """
-    Learners trained in lockstep on a shared PettingZoo ParallelEnv: one per agent (independent learners), or one
-    that every agent feeds (parameter sharing).
+    Learners trained in lockstep on a shared PettingZoo ParallelEnv: one per agent (independent learners), one per
+    agent that every agent feeds (experience sharing), or one that every agent acts with and feeds (parameter
+    sharing).
 
     Agents whose episode ended (terminated or truncated) store no further transitions until the shared
     env is reset, which happens when no agent is left. A time-limit truncation is stored as such
@@ -159,6 +174,11 @@ class MultiAgentRunner:
     learner trains as an SB3 algorithm on ``n_envs`` envs does (``train_freq`` and ``gradient_steps`` per joint
     step, ``learning_starts`` and ``target_update_interval`` in transitions). Learners are named by
     :attr:`learner_names`: the agents' names, or :data:`SHARED`.
+
+    With ``sharing="experience"`` each agent acts with its own learner, for its own weights, and every learner also
+    stores the other agents' transitions of the step (after its own, once every learner has stepped): homogeneous
+    agents see the same dynamics from their own observations, and an off-policy learner learns its weights from
+    transitions it did not choose. A learner's schedules still count its own agent's steps.
 
     :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents; composite
         observation spaces (``Tuple``, ``Dict``) are flattened
@@ -171,7 +191,8 @@ class MultiAgentRunner:
     :param verbose: verbosity of the runner-level logger
     :param log_interval: a learner writes its logs (TensorBoard, stdout) every ``log_interval`` of its episodes, as
         in SB3's ``learn(log_interval=...)``, and at the end of its iteration
-    :param sharing: ``"independent"``: one learner per agent; ``"shared"``: one learner for all agents
+    :param sharing: ``"independent"``: one learner per agent; ``"experience"``: one learner per agent, each fed
+        every agent's transitions; ``"shared"``: one learner for all agents
     :param n_envs: copies of the env to train on, each in its own process (``env_fn``), all stepped at every joint
         step: a learner has a slot per agent and copy (SB3's ``n_envs``). 1: train on ``env`` itself. Evaluations and
         value estimates always run on ``env``
@@ -288,6 +309,8 @@ class MultiAgentRunner:
             raise ValueError(f"bad learner options: {error}") from error
         if learner.n_envs > 1 and learner.optimize_memory_usage:
             raise ValueError("a learner shared by several agents needs optimize_memory_usage=False")
+        if self.sharing == EXPERIENCE and learner.optimize_memory_usage:
+            raise ValueError("sharing='experience' needs optimize_memory_usage=False: agents' rows interleave")
 
     def start_iteration(
         self,
@@ -389,10 +412,14 @@ class MultiAgentRunner:
             self._check_truncations(copy, returned[2], returned[3])
             for values, by_key in zip(returned, merged, strict=True):
                 by_key.update({(copy, agent): value for agent, value in values.items()})
-        keep_going = True
+        keep_going, stored = True, {}
         for name, (live, buffer_action) in sampled.items():
             keys = [self.slots[name][i] for i in live]
-            keep_going &= self._learner_step(name, Transitions(keys, live, buffer_action[live], *merged))
+            rows, infos = self._stored_rows(name, Transitions(keys, live, buffer_action[live], *merged))
+            keep_going &= self._learner_step(name, rows, infos)
+            stored[name] = rows
+        if self.sharing == EXPERIENCE:
+            self._share_experience(stored)
         finished = [copy for copy in range(self.n_envs) if not self._live[copy]]
         if finished:
             self.reset_env(copies=finished)
@@ -412,24 +439,42 @@ class MultiAgentRunner:
                 stacklevel=3,
             )
 
-    def _learner_step(self, name: str, step: Transitions) -> bool:
-        """Hand learner ``name`` the transitions of its live agents, as SB3's ``collect_rollouts`` would."""
-        learner, callback = self.learners[name], self._learner_callbacks[name]
+    def _stored_rows(self, name: str, step: Transitions) -> tuple[Rows, list[dict[str, Any]]]:
+        """
+        The transitions of learner ``name``'s live agents, as its replay buffer stores them, and their infos; its last
+        observations move on to theirs.
+        """
+        learner = self.learners[name]
         next_obs = np.stack([np.asarray(step.obs[agent]) for agent in step.agents])
         rewards = np.stack([np.asarray(step.rewards[agent], dtype=np.float32) for agent in step.agents])
         dones = np.array([step.terminations[agent] or step.truncations[agent] for agent in step.agents])
         infos = [self._monitored_info(agent, step) for agent in step.agents]
-        learner.num_timesteps += len(step.agents)
-        callback.update_locals(locals())
-        keep_going = callback.on_step()
-        learner._update_info_buffer(infos, dones)
         timeouts = np.array([info.get("TimeLimit.truncated", False) for info in infos])
         last_obs = learner._last_obs
-        learner.replay_buffer.add_rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts)
         learner._last_obs = next_obs if len(step.slots) == learner.n_envs else _replaced(last_obs, step.slots, next_obs)
+        return Rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts), infos
+
+    def _share_experience(self, stored: dict[str, Rows]) -> None:
+        """Every learner stores the rows of the other learners' agents (``sharing="experience"``)."""
+        for name, learner in self.learners.items():
+            for other, rows in stored.items():
+                if other != name:
+                    learner.replay_buffer.add_rows(*rows)
+
+    def _learner_step(self, name: str, rows: Rows, infos: list[dict[str, Any]]) -> bool:
+        """
+        Hand learner ``name`` the transitions of its live agents, as SB3's ``collect_rollouts`` would: count them,
+        call its callback, store them, and train when due.
+        """
+        learner, callback = self.learners[name], self._learner_callbacks[name]
+        learner.num_timesteps += len(infos)
+        callback.update_locals({"new_obs": rows.next_obs, "rewards": rows.rewards, "dones": rows.dones, "infos": infos})
+        keep_going = callback.on_step()
+        learner._update_info_buffer(infos, rows.dones)
+        learner.replay_buffer.add_rows(*rows)
         learner._update_current_progress_remaining(learner.num_timesteps, learner._total_timesteps)
         learner._on_step()
-        episodes_before, learner._episode_num = learner._episode_num, learner._episode_num + int(dones.sum())
+        episodes_before, learner._episode_num = learner._episode_num, learner._episode_num + int(rows.dones.sum())
         if learner._episode_num // self.log_interval > episodes_before // self.log_interval:
             learner.dump_logs()  # SB3's log_interval: a point of the learning curve (at most one per joint step)
         if learner.num_timesteps > learner.learning_starts and learner._n_calls % learner.train_freq.frequency == 0:

@@ -1,4 +1,7 @@
-"""Parameter sharing: one SFDQN that every agent acts with and feeds (``sharing="shared"``)."""
+"""
+Parameter sharing: one SFDQN that every agent acts with and feeds (``sharing="shared"``); experience sharing: one
+SFDQN per agent that stores every agent's transitions (``sharing="experience"``).
+"""
 
 from __future__ import annotations
 
@@ -15,7 +18,7 @@ from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.multiagent import SHARED, MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.multiagent import EXPERIENCE, SHARED, MultiAgentRunner, default_learner_factory
 
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
 
@@ -119,10 +122,13 @@ def test_fixed_weights_with_a_shared_learner_evaluate_gpi_over_the_shared_polici
 
 
 def test_bad_sharing_options_are_refused():
-    with pytest.raises(ValueError, match="sharing must be one of .*'independent', 'shared'"):
+    with pytest.raises(ValueError, match="sharing must be one of .*'independent', 'experience', 'shared'"):
         MultiAgentRunner(ParallelChainEnv(2), sharing="pooled")
-    with pytest.raises(ValueError, match="optimize_memory_usage=False"):
-        MASFOLS(ParallelChainEnv(2), sharing="shared", learner_kwargs={**LEARNER_KWARGS, "optimize_memory_usage": True})
+    for sharing in (SHARED, EXPERIENCE):
+        with pytest.raises(ValueError, match="optimize_memory_usage=False"):
+            MASFOLS(
+                ParallelChainEnv(2), sharing=sharing, learner_kwargs={**LEARNER_KWARGS, "optimize_memory_usage": True}
+            )
 
 
 def test_cli_trains_with_sharing_and_refuses_to_change_it_on_resume(tmp_path):
@@ -149,3 +155,69 @@ def test_beach_with_twenty_agents_trains_one_shared_learner():
     shared = model.runner.learners[SHARED]
     assert shared.n_envs == 20 and shared.num_timesteps == 100 * 20  # every agent's transition, every joint step
     assert len(model.history) >= 1 and all(np.isfinite(row["mean_return"]) for row in model.history)
+
+
+def chain_runner(sharing: str, n_agents: int = 3) -> MultiAgentRunner:
+    env = ParallelChainEnv(n_agents, staggered=True)  # agent i starts at state i: agent_1 never visits state 0
+    return MultiAgentRunner(env, default_learner_factory(**CHAIN_LEARNER), sharing=sharing)
+
+
+def test_with_experience_sharing_every_learner_stores_every_live_agents_transitions():
+    runner = chain_runner(EXPERIENCE)
+    assert runner.learner_names == ["agent_0", "agent_1", "agent_2"]
+    runner.start_iteration({name: np.array([0.5, 0.5]) for name in runner.learner_names}, 0, total_timesteps=100)
+    for _ in range(8):  # two episodes of 4 joint steps; agents 0, 1, 2 make 4, 3 and 2 transitions in each
+        runner.step()
+    stored = []
+    for name, own in zip(runner.learner_names, (8, 6, 4), strict=True):
+        learner = runner.learners[name]
+        assert learner.n_envs == 1 and learner.num_timesteps == own and learner._episode_num == 2  # its own agent's
+        obs, actions, next_obs, dones, rewards = learner.replay_buffer.stored_arrays()  # everyone's: 18 rows
+        assert sorted(obs.reshape(-1).tolist()) == sorted([0, 1, 1, 2, 2, 2, 3, 3, 3] * 2)
+        np.testing.assert_array_equal(next_obs.reshape(-1), obs.reshape(-1) + 1)
+        np.testing.assert_array_equal(dones.reshape(-1), next_obs.reshape(-1) == TERMINAL)
+        np.testing.assert_array_equal(rewards, REWARDS[obs.reshape(-1), actions.reshape(-1)])
+        stored.append(sorted(zip(obs.reshape(-1).tolist(), actions.reshape(-1).tolist(), strict=True)))
+    assert stored[0] == stored[1] == stored[2]  # the same transitions, the actions each agent's learner chose
+
+
+@pytest.mark.parametrize("sharing", ["independent", EXPERIENCE])
+def test_with_experience_sharing_a_learner_learns_the_states_only_other_agents_visit(sharing):
+    w = np.array([0.3, 0.7])
+    runner = chain_runner(sharing, n_agents=2)
+    runner.start_iteration({name: w for name in runner.learner_names}, 0, total_timesteps=600)
+    for _ in range(600):
+        runner.step()
+    runner.end_iteration()
+    values = {
+        name: (learner.successor_features(np.array([0]))[0] @ w).max() for name, learner in runner.learners.items()
+    }
+    assert values["agent_0"] == pytest.approx(optimal_value(w), abs=1e-3)
+    if sharing == EXPERIENCE:  # agent_1 starts at state 1, yet its table knows state 0 from agent_0's transitions
+        assert values["agent_1"] == pytest.approx(optimal_value(w), abs=1e-3)
+    else:
+        assert values["agent_1"] == 0.0
+
+
+def test_experience_sharing_ma_sfols_finds_the_exact_ccs_and_evaluates_fixed_weights_by_own_policies():
+    model = MASFOLS(
+        ParallelChainEnv(2), steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS, test_weights=3, sharing=EXPERIENCE
+    ).learn(max_iterations=10)
+    assert model.callback.ended_by_schedule
+    assert model.history[0]["weights_trained"] == {"agent_0": [1.0, 0.0], "agent_1": [0.0, 1.0]}  # two per iteration
+    for w0 in np.linspace(0, 1, 21):
+        w = np.array([w0, 1 - w0])
+        assert model.policy_set.q_values(np.array([0]), w).max() == pytest.approx(optimal_value(w), abs=1e-3)
+    fixed = MASFOLS(
+        ParallelChainEnv(2), weights=[0.3, 0.7], steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS,
+        sharing=EXPERIENCE,
+    )  # fmt: skip
+    assert fixed.callback.evaluation.policies == "own"
+
+
+def test_cli_trains_with_experience_sharing(tmp_path):
+    out = tmp_path / "fr"
+    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--no-progress"]
+    assert main([*train, "--sharing", "experience", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["sharing"] == EXPERIENCE
+    assert json.loads((out / "evaluation.json").read_text())[0]["weights_trained"].keys() == {"agent_0", "agent_1"}

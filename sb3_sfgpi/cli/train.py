@@ -101,8 +101,9 @@ def _add_method_arguments(group: Any) -> None:
     group.add_argument(
         "--sharing",
         choices=list(SHARINGS),
-        help="independent: one learner per agent (the paper); shared: one learner per iteration that every agent "
-        "acts with and feeds (parameter sharing: one weight per iteration). Default: the domain's",
+        help="independent: one learner per agent (the paper); experience: one learner per agent that also stores the "
+        "other agents' transitions; shared: one learner per iteration that every agent acts with and feeds "
+        "(parameter sharing: one weight per iteration). Default: the domain's",
     )
     group.add_argument(
         "--validation-weights",
