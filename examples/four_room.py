@@ -57,9 +57,13 @@ def observation_mode(env_overrides: list[str]) -> str:
     return modes[-1] if modes else "own"
 
 
+#: What the figure's title says of the learners: nothing for one per agent (the paper's).
+SHARING_TITLES = {"shared": ", one learner shared by both agents", "experience": ", learners fed by both agents"}
+
+
 def shared_title(sharing: str | None) -> str:
-    """What the figure's title says of the learners: nothing for one per agent (the paper's)."""
-    return ", one learner shared by both agents" if sharing == "shared" else ""
+    """What the figure's title says of the learners."""
+    return SHARING_TITLES.get(sharing or "", "")
 
 
 def main() -> None:

@@ -110,8 +110,9 @@ class MASFOLS:
         trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
         learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the
         agents' transitions; for many homogeneous agents); ``"experience"``: one learner per agent, for its own
-        weights, that also stores every other agent's transitions (experience sharing). See
-        :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`
+        weights, that also stores the transitions of the other agents training for the same weights (experience
+        sharing: in the rounds where several agents train for one weight, e.g. ``ols_batch="same"``, and with fixed
+        weights). See :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`
     :param n_envs: train on this many copies of the env, each in its own process (``env_fn``), stepped together: a
         learner has a slot per agent and copy. An iteration's ``steps_per_iteration`` joint steps then give
         ``n_envs`` times as many transitions. 1: train on ``env`` (evaluations always run on ``env``)

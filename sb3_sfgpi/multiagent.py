@@ -141,7 +141,8 @@ def _replaced(rows: np.ndarray, slots: list[int], values: np.ndarray) -> np.ndar
 
 #: The name of the one learner all agents share (``sharing="shared"``).
 SHARED = "shared"
-#: One learner per agent, each also storing every other agent's transitions (``sharing="experience"``).
+#: One learner per agent, each also storing the transitions of the agents that train for its weights
+#: (``sharing="experience"``).
 EXPERIENCE = "experience"
 #: How agents get their learners: one each, one each fed by all, or one for all (:class:`MultiAgentRunner`'s
 #: ``sharing``).
@@ -162,8 +163,8 @@ class Rows(NamedTuple):
 class MultiAgentRunner:
     """
     Learners trained in lockstep on a shared PettingZoo ParallelEnv: one per agent (independent learners), one per
-    agent that every agent feeds (experience sharing), or one that every agent acts with and feeds (parameter
-    sharing).
+    agent that the agents training for the same weights feed (experience sharing), or one that every agent acts with
+    and feeds (parameter sharing).
 
     Agents whose episode ended (terminated or truncated) store no further transitions until the shared
     env is reset, which happens when no agent is left. A time-limit truncation is stored as such
@@ -176,9 +177,12 @@ class MultiAgentRunner:
     :attr:`learner_names`: the agents' names, or :data:`SHARED`.
 
     With ``sharing="experience"`` each agent acts with its own learner, for its own weights, and every learner also
-    stores the other agents' transitions of the step (after its own, once every learner has stepped): homogeneous
-    agents see the same dynamics from their own observations, and an off-policy learner learns its weights from
-    transitions it did not choose. A learner's schedules still count its own agent's steps.
+    stores the step's transitions of the other agents whose learners train for the same weights (after its own,
+    once every learner has stepped): homogeneous agents see the same dynamics from their own observations, and an
+    off-policy learner learns its weights from transitions it did not choose. Only from agents acting for the same
+    weights: from a partner that acts otherwise, a learner's SFs promise the objects that partner leaves alone, which
+    at execution, where every agent acts for one weight, it does not (on Four-Room GPI ended lower; README). A
+    learner's schedules still count its own agent's steps.
 
     :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents; composite
         observation spaces (``Tuple``, ``Dict``) are flattened
@@ -191,8 +195,8 @@ class MultiAgentRunner:
     :param verbose: verbosity of the runner-level logger
     :param log_interval: a learner writes its logs (TensorBoard, stdout) every ``log_interval`` of its episodes, as
         in SB3's ``learn(log_interval=...)``, and at the end of its iteration
-    :param sharing: ``"independent"``: one learner per agent; ``"experience"``: one learner per agent, each fed
-        every agent's transitions; ``"shared"``: one learner for all agents
+    :param sharing: ``"independent"``: one learner per agent; ``"experience"``: one learner per agent, each fed the
+        transitions of every agent training for the same weights; ``"shared"``: one learner for all agents
     :param n_envs: copies of the env to train on, each in its own process (``env_fn``), all stepped at every joint
         step: a learner has a slot per agent and copy (SB3's ``n_envs``). 1: train on ``env`` itself. Evaluations and
         value estimates always run on ``env``
@@ -455,10 +459,10 @@ class MultiAgentRunner:
         return Rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts), infos
 
     def _share_experience(self, stored: dict[str, Rows]) -> None:
-        """Every learner stores the rows of the other learners' agents (``sharing="experience"``)."""
+        """Every learner stores the rows of the other learners that train for its weights (``sharing="experience"``)."""
         for name, learner in self.learners.items():
             for other, rows in stored.items():
-                if other != name:
+                if other != name and np.array_equal(self.learners[other].weights, learner.weights):
                     learner.replay_buffer.add_rows(*rows)
 
     def _learner_step(self, name: str, rows: Rows, infos: list[dict[str, Any]]) -> bool:

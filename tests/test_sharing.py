@@ -181,6 +181,19 @@ def test_with_experience_sharing_every_learner_stores_every_live_agents_transiti
     assert stored[0] == stored[1] == stored[2]  # the same transitions, the actions each agent's learner chose
 
 
+def test_with_experience_sharing_only_learners_of_the_same_weights_share():
+    runner = chain_runner(EXPERIENCE)
+    weights = {"agent_0": np.array([0.5, 0.5]), "agent_1": np.array([0.5, 0.5]), "agent_2": np.array([1.0, 0.0])}
+    runner.start_iteration(weights, 0, total_timesteps=100)
+    for _ in range(8):
+        runner.step()
+    visited = {
+        name: sorted(runner.learners[name].replay_buffer.stored_arrays()[0].reshape(-1).tolist()) for name in weights
+    }
+    assert visited["agent_0"] == visited["agent_1"] == sorted([0, 1, 2, 3, 1, 2, 3] * 2)  # agents 0 and 1's
+    assert visited["agent_2"] == [2, 2, 3, 3]  # its own: nobody else trains for [1, 0]
+
+
 @pytest.mark.parametrize("sharing", ["independent", EXPERIENCE])
 def test_with_experience_sharing_a_learner_learns_the_states_only_other_agents_visit(sharing):
     w = np.array([0.3, 0.7])

@@ -54,8 +54,9 @@ class DomainPreset:
         ``validation_weights > 0``)
     :param replan: plan every policy of Π again on the run's pooled experience after every iteration (tabular
         learners; see :class:`~sb3_sfgpi.callbacks.OLSCallback`)
-    :param sharing: ``"independent"`` (one learner per agent) or ``"shared"`` (one learner that every agent acts with
-        and feeds; see :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`)
+    :param sharing: ``"independent"`` (one learner per agent), ``"experience"`` (one learner per agent that also
+        stores the transitions of the agents training for the same weights) or ``"shared"`` (one learner that every
+        agent acts with and feeds; see :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`)
     :param eval_workers: default number of evaluation processes
     :param objectives: the objectives' names, one per reward component
     :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions

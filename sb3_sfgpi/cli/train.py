@@ -102,8 +102,8 @@ def _add_method_arguments(group: Any) -> None:
         "--sharing",
         choices=list(SHARINGS),
         help="independent: one learner per agent (the paper); experience: one learner per agent that also stores the "
-        "other agents' transitions; shared: one learner per iteration that every agent acts with and feeds "
-        "(parameter sharing: one weight per iteration). Default: the domain's",
+        "transitions of the agents training for the same weights; shared: one learner per iteration that every agent "
+        "acts with and feeds (parameter sharing: one weight per iteration). Default: the domain's",
     )
     group.add_argument(
         "--validation-weights",
