@@ -144,8 +144,8 @@ SHARED = "shared"
 #: One learner per agent, each also storing the transitions of the agents that train for its weights
 #: (``sharing="experience"``).
 EXPERIENCE = "experience"
-#: How agents get their learners: one each, one each fed by all, or one for all (:class:`MultiAgentRunner`'s
-#: ``sharing``).
+#: How agents get their learners: one each, one each fed by the agents of its weights, or one for all
+#: (:class:`MultiAgentRunner`'s ``sharing``).
 SHARINGS = ("independent", EXPERIENCE, SHARED)
 
 
@@ -180,9 +180,9 @@ class MultiAgentRunner:
     stores the step's transitions of the other agents whose learners train for the same weights (after its own,
     once every learner has stepped): homogeneous agents see the same dynamics from their own observations, and an
     off-policy learner learns its weights from transitions it did not choose. Only from agents acting for the same
-    weights: from a partner that acts otherwise, a learner's SFs promise the objects that partner leaves alone, which
-    at execution, where every agent acts for one weight, it does not (on Four-Room GPI ended lower; README). A
-    learner's schedules still count its own agent's steps.
+    weights: from a partner that acts otherwise, a learner's SFs count on the objects that partner leaves alone, which
+    at execution, where every agent acts for one weight, it takes (on Four-Room GPI ended lower; README). A learner's
+    schedules still count its own agent's steps.
 
     :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents; composite
         observation spaces (``Tuple``, ``Dict``) are flattened

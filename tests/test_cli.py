@@ -173,7 +173,9 @@ def test_compare_evaluates_a_fixed_run_of_one_shared_learner_by_its_policies(run
 
 
 def test_a_preset_with_an_unknown_sharing_is_refused():
-    with pytest.raises(UsageError, match="sharing must be one of .*'independent', 'shared'.*, got 'pooled'"):
+    with pytest.raises(
+        UsageError, match="sharing must be one of .*'independent', 'experience', 'shared'.*, got 'pooled'"
+    ):
         DomainPreset.from_dict("four-room", {**four_room(), "sharing": "pooled"})
 
 
