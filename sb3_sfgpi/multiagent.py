@@ -255,6 +255,7 @@ class MultiAgentRunner:
         self._episode_steps = [0] * n_envs
         self.learners: dict[str, SFDQN] = {}
         self._learner_callbacks: dict[str, BaseCallback] = {}
+        self._peers: dict[str, list[str]] = {}  # learner -> the other learners of its weights (sharing="experience")
         self._gamma = gamma
         self.num_timesteps = 0
         self.iteration = 0
@@ -311,10 +312,11 @@ class MultiAgentRunner:
             learner = self.learner_factory(name, self.views[name], np.full(self.reward_dim, 1 / self.reward_dim), 0)
         except TypeError as error:  # an unknown keyword argument
             raise ValueError(f"bad learner options: {error}") from error
-        if learner.n_envs > 1 and learner.optimize_memory_usage:
-            raise ValueError("a learner shared by several agents needs optimize_memory_usage=False")
-        if self.sharing == EXPERIENCE and learner.optimize_memory_usage:
-            raise ValueError("sharing='experience' needs optimize_memory_usage=False: agents' rows interleave")
+        if learner.optimize_memory_usage and (learner.n_envs > 1 or self.sharing == EXPERIENCE):
+            raise ValueError(
+                "a learner whose buffer takes several agents' rows (one shared learner, or sharing='experience') needs "
+                "optimize_memory_usage=False"
+            )
 
     def start_iteration(
         self,
@@ -348,6 +350,11 @@ class MultiAgentRunner:
             if learner.train_freq.unit != TrainFrequencyUnit.STEP:  # type: ignore[union-attr]
                 raise ValueError("the multi-agent runner supports train_freq in steps only")
             self.learners[name] = learner
+        trained = {name: learner.weights for name, learner in self.learners.items()}
+        self._peers = {
+            name: [other for other in trained if other != name and np.array_equal(trained[other], w)]
+            for name, w in trained.items()
+        }
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for name, learner in self.learners.items():
             log_name = f"{name}_iter{iteration + 1:03d}"  # iterations are named from 1
@@ -460,10 +467,10 @@ class MultiAgentRunner:
 
     def _share_experience(self, stored: dict[str, Rows]) -> None:
         """Every learner stores the rows of the other learners that train for its weights (``sharing="experience"``)."""
-        for name, learner in self.learners.items():
-            for other, rows in stored.items():
-                if other != name and np.array_equal(self.learners[other].weights, learner.weights):
-                    learner.replay_buffer.add_rows(*rows)
+        for name, peers in self._peers.items():
+            for other in peers:
+                if other in stored:
+                    self.learners[name].replay_buffer.add_rows(*stored[other])
 
     def _learner_step(self, name: str, rows: Rows, infos: list[dict[str, Any]]) -> bool:
         """
