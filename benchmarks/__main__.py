@@ -2,8 +2,9 @@
 
     python -m benchmarks                 # everything (about 26 minutes on 2 cores, 13 of them sweep-fig4)
     python -m benchmarks --quick         # shorter runs
-    python -m benchmarks gpi ols         # some: gpi training ols traffic memory optimum sharing copies ray-eval
-                                         # sweep sweep-fig4, and sweep-fig4-preset (only when named)
+    python -m benchmarks gpi ols         # some: gpi training planning ols traffic memory optimum sharing
+                                         # copies ray-eval sweep sweep-fig4, and sweep-fig4-preset (only
+                                         # when named)
     python -m benchmarks --output results.md
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
@@ -28,6 +29,7 @@ from benchmarks._common import Row, single_thread_torch
 BENCHMARKS = {
     "gpi": "benchmarks.bench_gpi",
     "training": "benchmarks.bench_training",
+    "planning": "benchmarks.bench_planning",
     "ols": "benchmarks.bench_ols",
     "traffic": "benchmarks.bench_traffic",
     "memory": "benchmarks.bench_memory",

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from momdp import N_STATES, REWARDS, TERMINAL, Fig1MOMDP, all_observations, optimal_value, successor_features
 
 from sb3_sfgpi.sfdqn import SFDQN
-from sb3_sfgpi.sfdqn.planning import EmpiricalModel, Experience, plan_afresh
+from sb3_sfgpi.sfdqn.planning import TOLERANCE, EmpiricalModel, Experience, plan_afresh
 
 
 def test_a_stochastic_model_is_backed_up_with_its_empirical_probabilities():
@@ -47,6 +47,38 @@ def test_sweeps_reach_value_iteration_on_the_empirical_model(seed, gamma):
             following = previous[next_rows[seen], (previous[next_rows[seen]] @ w).argmax(axis=1)]
             expected[s, a] = np.mean(rewards[seen] + gamma * (1 - dones[seen])[:, None] * following, axis=0)
     np.testing.assert_allclose(table.reshape(n_states, n_actions, 2), expected, atol=1e-4)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans(), st.integers(1, 8))
+def test_a_sweep_is_the_jacobi_backup_of_the_whole_table_to_the_last_bit(seed, deterministic, max_sweeps):
+    # The sweeps work on a copy of the rows they touch: the result must be that of backing up every recorded pair
+    # from the whole table, one pair at a time, with the same arithmetic; rows never recorded must stay as they were.
+    rng = np.random.default_rng(seed)
+    n_states, n_actions, n = 50, 3, 60
+    rows = rng.integers(0, n_states, n)
+    actions = rng.integers(0, n_actions, n)
+    next_rows = (rows * 7 + actions) % n_states if deterministic else rng.integers(0, n_states, n)
+    dones, rewards = (rng.random(n) < 0.2).astype(np.float64), rng.random((n, 3)).astype(np.float32)
+    model = Experience.from_transitions(rows, actions, next_rows, dones, rewards, n_states, n_actions).model()
+    table = rng.normal(size=(n_states * n_actions, 3)).astype(np.float32)
+    table[rng.random(len(table)) < 0.3] = 1.25  # optimistic untried pairs: exact ties between actions
+    weights = rng.dirichlet(np.ones(3)).astype(np.float32)
+    expected, expected_sweeps = table.copy(), 0
+    while expected_sweeps < max_sweeps:
+        previous, expected_sweeps = expected.copy(), expected_sweeps + 1
+        for pair, entry in enumerate(model.entries):
+            backed_up = np.zeros(3)
+            for o in np.flatnonzero(model.pair == pair):
+                first = model.next_first[o]
+                following = previous[first + (previous[first : first + n_actions] @ weights).argmax()]
+                scale = 0.9 * model.continues[o] * model.probability[o]
+                backed_up = backed_up + (model.reward[o] * model.probability[o] + scale * following)
+            expected[entry] = backed_up
+        if np.abs(expected - previous).max() <= TOLERANCE:
+            break
+    assert model.sweep(table, weights, 0.9, max_sweeps) == expected_sweeps
+    np.testing.assert_array_equal(table, expected)
 
 
 @pytest.mark.parametrize("w", [[1.0, 0.0], [0.0, 1.0], [0.4, 0.6]])

@@ -21,8 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sb3_sfgpi.sfdqn.networks import greedy_entries
-
 #: Sweeps stop once no entry of ψ moves by more than this.
 TOLERANCE = 1e-6
 
@@ -54,29 +52,47 @@ class EmpiricalModel:
         Back up every recorded pair of ``table`` in place, ``max_sweeps`` times or until no entry moves by more than
         :data:`TOLERANCE`.
 
+        The sweeps work on a contiguous copy of the rows they read or write (every action of the states recorded
+        and of their next states), written back at the end: the same arithmetic as on the table, 3.5 times as fast
+        as indexing the whole table at every sweep (``python -m benchmarks planning``).
+
         :param table: ψ, one row per ``(state, action)``: shape ``(n_rows * n_actions, d)``
         :param weights: ``w``, shape ``(d,)``
         :param gamma: discount factor
         :param max_sweeps: most sweeps to do
         :return: the number of sweeps done
         """
+        n_actions, n_pairs = self.n_actions, len(self.entries)
+        states, local_state = np.unique(
+            np.concatenate([self.entries, self.next_first]) // n_actions, return_inverse=True
+        )
+        rows = (states[:, None] * n_actions + np.arange(n_actions)).ravel()
+        psi = table[rows]
+        own = local_state[:n_pairs] * n_actions + self.entries % n_actions
+        following_state = local_state[n_pairs:]
+        first = np.arange(len(states)) * n_actions
         scale = (gamma * self.continues * self.probability)[:, None]
         expected_reward = self.reward * self.probability[:, None]
-        for sweep in range(1, max_sweeps + 1):
-            following = table[greedy_entries(table, self.next_first, self.n_actions, weights)]
-            contributions = expected_reward + scale * following
-            backed_up = np.stack(
-                [
-                    np.bincount(self.pair, weights=contributions[:, i], minlength=len(self.entries))
-                    for i in range(table.shape[1])
-                ],
-                axis=1,
-            )
-            change = np.abs(table[self.entries] - backed_up).max(initial=0.0)
-            table[self.entries] = backed_up
+        one_outcome_each = len(self.pair) == n_pairs  # a deterministic environment: no sums
+        sweeps = 0
+        while sweeps < max_sweeps:
+            sweeps += 1
+            greedy = first + (psi.reshape(len(states), n_actions, -1) @ weights).argmax(axis=1)
+            contributions = expected_reward + scale * np.take(psi, greedy[following_state], axis=0)
+            backed_up = contributions if one_outcome_each else self._summed_by_pair(contributions)
+            change = np.abs(np.take(psi, own, axis=0) - backed_up).max(initial=0.0)
+            psi[own] = backed_up
             if change <= TOLERANCE:
-                return sweep
-        return max_sweeps
+                break
+        table[rows] = psi
+        return sweeps
+
+    def _summed_by_pair(self, values: np.ndarray) -> np.ndarray:
+        """The sums of ``values`` (one row per outcome) over each pair's outcomes, added in their order."""
+        return np.stack(
+            [np.bincount(self.pair, weights=values[:, i], minlength=len(self.entries)) for i in range(values.shape[1])],
+            axis=1,
+        )
 
 
 @dataclass(frozen=True)
