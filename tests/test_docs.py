@@ -1,0 +1,268 @@
+"""The documentation: the Sphinx site builds without a warning, and every code block of README.md and docs/ runs.
+
+Rules for the code blocks (fenced blocks of ``README.md`` and ``docs/**/*.md``):
+
+* ``python`` blocks are executed, those of one file in order in one namespace, in a fresh temporary working
+  directory (so ``runs/...`` paths of a page land there).
+* ``bash``, ``console``, ``shell`` and ``sh`` blocks are read command by command (``\\`` continues a line, ``#``
+  starts a comment, ``$`` prompts and ``&&`` chains are split):
+
+  - ``sb3-sfgpi train four-room ...`` is run through the real CLI (``sb3_sfgpi.cli.main``) with a tiny budget
+    appended (one iteration of 200 joint steps, no validation, 2 test weights), once per algorithm and file; the
+    other ``train four-room`` commands of a file, ``train`` on other domains (SUMO episodes take minutes), ``--resume``,
+    ``compare``, ``plot`` and ``sweep`` are parsed by the real CLI parser (a wrong option fails the test);
+  - ``sb3-sfgpi evaluate RUN ...`` is run when an earlier block of the file trained ``RUN``, else parsed;
+  - set-up and other commands are checked, not run: ``bash FILE`` and ``python FILE`` need the file in the
+    repository, ``python -m MODULE`` the module, ``pip`` and other programs must be on ``PATH``.
+
+* A block is skipped only when the line before its fence is ``<!-- no-test: REASON -->`` with a reason.
+* Other languages (``text``, ``json``, ...) are not code and are not run.
+
+The Sphinx build runs offline (no intersphinx), from scratch (``-E``) into a temporary directory, with warnings as
+errors (``-W --keep-going``); every name of ``sb3_sfgpi.__all__`` and ``sfgpi_envs.__all__`` must be documented.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import importlib.util
+import io
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+MARKDOWN = [ROOT / "README.md", *sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts)]
+SHELL = {"bash", "console", "shell", "sh"}
+NO_TEST = re.compile(r"^<!--\s*no-test:\s*(\S.*?)\s*-->$")
+FENCE = re.compile(r"^(`{3,}|~{3,})\s*([^\s`]*)")
+TINY_BUDGET = ["--iterations", "1", "--steps-per-iteration", "200", "--no-progress"]
+
+
+@dataclass
+class Block:
+    path: Path
+    line: int
+    language: str
+    code: str
+    skip_reason: str | None = None
+
+
+def code_blocks(path: Path) -> list[Block]:
+    """The fenced code blocks of a Markdown file (MyST directives such as ``{toctree}`` are not code)."""
+    lines = path.read_text(encoding="utf-8").split("\n")
+    blocks: list[Block] = []
+    i = 0
+    while i < len(lines):
+        match = FENCE.match(lines[i])
+        if not match:
+            i += 1
+            continue
+        fence, language = match.group(1), match.group(2).lower()
+        j = i + 1
+        while j < len(lines) and not lines[j].startswith(fence):
+            j += 1
+        assert j < len(lines), f"{path}:{i + 1}: unclosed code fence"
+        previous = lines[i - 1].strip() if i > 0 else ""
+        marker = NO_TEST.match(previous)
+        if previous.startswith("<!--") and "no-test" in previous:
+            assert marker, f"{path}:{i}: a no-test marker needs a reason: <!-- no-test: REASON -->"
+        if not language.startswith("{"):
+            blocks.append(Block(path, i + 1, language, "\n".join(lines[i + 1 : j]), marker and marker.group(1)))
+        i = j + 1
+    return blocks
+
+
+def shell_commands(code: str) -> list[list[str]]:
+    """The commands of a shell block, each as its argument list."""
+    commands: list[list[str]] = []
+    logical = ""
+    for raw in code.split("\n"):
+        line = raw.rstrip()
+        if line.startswith("$ "):
+            line = line[2:]
+        if line.endswith("\\"):
+            logical += line[:-1] + " "
+            continue
+        logical += line
+        words = shlex.split(logical, comments=True)
+        logical = ""
+        command: list[str] = []
+        for word in [*words, "&&"]:
+            if word in ("&&", ";", "||"):
+                if command:
+                    commands.append(command)
+                command = []
+            else:
+                command.append(word)
+    return commands
+
+
+@dataclass
+class CliState:
+    """What the shell blocks of one file trained (in the file's temporary directory)."""
+
+    trained_algos: set[str] = field(default_factory=set)
+    runs: set[str] = field(default_factory=set)
+
+
+def parse_cli(argv: list[str]):
+    from sb3_sfgpi.cli import parse_args
+
+    stderr = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(stderr):
+            return parse_args(argv)
+    except SystemExit as error:
+        raise AssertionError(f"sb3-sfgpi {' '.join(argv)}: the CLI parser refuses it: {stderr.getvalue()}") from error
+
+
+def quiet_preset_options(algo: str) -> list[str]:
+    """Preset settings that make a tiny run fast: no validation, 2 test weights (through ``--set`` where it exists)."""
+    settings = {"n_test_weights": "2"} if algo == "fixed" else {"validation_weights": "0", "n_test_weights": "2"}
+    for options in (
+        [word for key, value in settings.items() for word in ("--set", f"{key}={value}")],
+        [word for key, value in settings.items() for word in (f"--{key.replace('_', '-')}", value)],
+    ):
+        try:
+            parse_cli(["train", "four-room", "--algo", algo, *options])
+            return options
+        except AssertionError:
+            continue
+    return []
+
+
+def run_cli(argv: list[str]) -> None:
+    from sb3_sfgpi.cli import main
+
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = main(argv)
+    assert code == 0, f"sb3-sfgpi {' '.join(argv)} exited with {code}: {stderr.getvalue()[-2000:]}"
+
+
+def check_sb3_sfgpi(argv: list[str], state: CliState) -> None:
+    args = parse_cli(argv)
+    if args.command == "train" and args.domain == "four-room" and not args.resume:
+        if args.algo in state.trained_algos:
+            return  # parsed; one tiny run per algorithm and file is enough
+        state.trained_algos.add(args.algo)
+        run_cli([*argv, *TINY_BUDGET, *quiet_preset_options(args.algo)])
+        out = parse_cli([*argv, *TINY_BUDGET]).out or f"runs/four-room-{args.algo}-s{args.seed}"
+        state.runs.add(os.path.normpath(out))
+    elif args.command == "evaluate" and os.path.normpath(args.run_dir) in state.runs:
+        run_cli(argv)
+
+
+def check_command(argv: list[str], state: CliState) -> None:
+    program, args = argv[0], argv[1:]
+    if program == "sb3-sfgpi":
+        check_sb3_sfgpi(args, state)
+    elif program == "bash":
+        assert (ROOT / args[0]).is_file(), f"bash {args[0]}: no such file in the repository"
+    elif program == "python":
+        if args[0] == "-m":
+            module = args[1]
+            found = importlib.util.find_spec(module) or (ROOT / module).is_dir()
+            assert found, f"python -m {module}: no such module"
+        else:
+            assert (ROOT / args[0]).is_file(), f"python {args[0]}: no such file in the repository"
+    else:
+        assert shutil.which(program), f"{program}: not on PATH"
+
+
+def run_python(code: str, namespace: dict, where: str) -> None:
+    try:
+        exec(compile(code, where, "exec"), namespace)
+    except Exception as error:  # noqa: BLE001 - report which block broke
+        raise AssertionError(f"{where}: {type(error).__name__}: {error}") from error
+
+
+@pytest.fixture
+def in_tmp_dir(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(ROOT))
+    return tmp_path
+
+
+@pytest.mark.parametrize("path", MARKDOWN, ids=[str(p.relative_to(ROOT)) for p in MARKDOWN])
+def test_code_blocks_run(path: Path, in_tmp_dir) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    namespace: dict = {"__name__": "__docs__"}
+    state = CliState()
+    with contextlib.redirect_stdout(io.StringIO()):
+        for block in code_blocks(path):
+            where = f"{path.relative_to(ROOT)}:{block.line}"
+            if block.skip_reason:
+                continue
+            if block.language == "python":
+                run_python(block.code, namespace, where)
+            elif block.language in SHELL:
+                for argv in shell_commands(block.code):
+                    try:
+                        check_command(argv, state)
+                    except AssertionError as error:
+                        raise AssertionError(f"{where}: {error}") from error
+
+
+def test_the_block_checks_can_fail(tmp_path, monkeypatch) -> None:
+    """A broken block, an unknown option and a missing script are caught (the checks above are not vacuous)."""
+    monkeypatch.chdir(tmp_path)
+    page = tmp_path / "page.md"
+    page.write_text("text\n\n```python\nraise RuntimeError('broken')\n```\n", encoding="utf-8")
+    (block,) = code_blocks(page)
+    with pytest.raises(AssertionError, match="broken"):
+        run_python(block.code, {}, "page.md")
+    with pytest.raises(AssertionError, match="parser refuses"):
+        check_command(["sb3-sfgpi", "train", "four-room", "--no-such-option"], CliState())
+    with pytest.raises(AssertionError, match="no such file"):
+        check_command(["python", "examples/no_such_example.py"], CliState())
+    page.write_text("<!-- no-test: -->\n```bash\nls\n```\n", encoding="utf-8")
+    with pytest.raises(AssertionError, match="needs a reason"):
+        code_blocks(page)
+    assert shell_commands("a x \\\n  --y 1  # c\n$ b && c") == [["a", "x", "--y", "1"], ["b"], ["c"]]
+
+
+def sphinx_build(source: Path, out: Path) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-m", "sphinx", "-b", "html", "-E", "-W", "--keep-going", "-q", "-j", "1"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([*command, str(source), str(out)], capture_output=True, text=True, env=env, timeout=600)
+
+
+def test_sphinx_build_has_no_warning(tmp_path) -> None:
+    pytest.importorskip("sphinx")
+    pytest.importorskip("myst_parser")
+    result = sphinx_build(DOCS, tmp_path / "html")
+    assert result.returncode == 0 and "WARNING" not in result.stderr, result.stderr[-5000:]
+    html = "\n".join(p.read_text(encoding="utf-8") for p in (tmp_path / "html" / "api").glob("*.html"))
+    for package in ("sb3_sfgpi", "sfgpi_envs"):
+        module = importlib.import_module(package)
+        for name in module.__all__:
+            if name.startswith("_"):
+                continue
+            obj = getattr(module, name)
+            anchor = f'id="{obj.__module__}.{obj.__qualname__}"'
+            assert anchor in html, f"{package}.{name} is not in the API reference ({anchor})"
+
+
+def test_sphinx_build_fails_on_a_warning(tmp_path) -> None:
+    """The build's warnings are errors: a page with a broken cross-reference fails it."""
+    pytest.importorskip("sphinx")
+    pytest.importorskip("myst_parser")
+    source = tmp_path / "src"
+    source.mkdir()
+    (source / "conf.py").write_text('extensions = ["myst_parser"]\n', encoding="utf-8")
+    (source / "index.md").write_text("# Page\n\n[a link](missing.md)\n", encoding="utf-8")
+    result = sphinx_build(source, tmp_path / "html")
+    assert result.returncode != 0 and "WARNING" in result.stderr
