@@ -107,6 +107,9 @@ def shell_commands(code: str) -> list[list[str]]:
     return commands
 
 
+_TRAINED: dict[str, Path] = {}  # algorithm -> a tiny four-room run this process trained (tmp dirs live on)
+
+
 @dataclass
 class CliState:
     """What the shell blocks of one file trained (in the file's temporary directory)."""
@@ -156,9 +159,15 @@ def check_sb3_sfgpi(argv: list[str], state: CliState) -> None:
         if args.algo in state.trained_algos:
             return  # parsed; one tiny run per algorithm and file is enough
         state.trained_algos.add(args.algo)
+        if args.out and args.algo in _TRAINED:  # this process ran it already: the same tiny run, copied
+            shutil.copytree(_TRAINED[args.algo], args.out)
+            state.runs.add(os.path.normpath(args.out))
+            return
+        before = set(Path.cwd().glob("**/run.json"))
         run_cli([*argv, *TINY_BUDGET, *quiet_preset_options(args.algo)])
-        out = parse_cli([*argv, *TINY_BUDGET]).out or f"runs/four-room-{args.algo}-s{args.seed}"
-        state.runs.add(os.path.normpath(out))
+        (run_file,) = set(Path.cwd().glob("**/run.json")) - before  # the run directory, wherever the CLI put it
+        _TRAINED[args.algo] = run_file.parent
+        state.runs.add(os.path.normpath(run_file.parent.relative_to(Path.cwd())))
     elif args.command == "evaluate" and os.path.normpath(args.run_dir) in state.runs:
         run_cli(argv)
 
