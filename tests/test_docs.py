@@ -250,8 +250,6 @@ def sphinx_build(source: Path, out: Path) -> subprocess.CompletedProcess:
 
 
 def test_sphinx_build_has_no_warning(tmp_path) -> None:
-    pytest.importorskip("sphinx")
-    pytest.importorskip("myst_parser")
     result = sphinx_build(DOCS, tmp_path / "html")
     assert result.returncode == 0 and "WARNING" not in result.stderr, result.stderr[-5000:]
     html = "\n".join(p.read_text(encoding="utf-8") for p in (tmp_path / "html" / "api").glob("*.html"))
@@ -267,8 +265,6 @@ def test_sphinx_build_has_no_warning(tmp_path) -> None:
 
 def test_sphinx_build_fails_on_a_warning(tmp_path) -> None:
     """The build's warnings are errors: a page with a broken cross-reference fails it."""
-    pytest.importorskip("sphinx")
-    pytest.importorskip("myst_parser")
     source = tmp_path / "src"
     source.mkdir()
     (source / "conf.py").write_text('extensions = ["myst_parser"]\n', encoding="utf-8")
