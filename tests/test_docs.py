@@ -156,13 +156,14 @@ def run_cli(argv: list[str]) -> None:
 def check_sb3_sfgpi(argv: list[str], state: CliState) -> None:
     args = parse_cli(argv)
     if args.command == "train" and args.domain == "four-room" and not args.resume:
+        if args.out and args.algo in _TRAINED:  # this process ran it already: the same tiny run, copied
+            if not Path(args.out).exists():
+                shutil.copytree(_TRAINED[args.algo], args.out)
+            state.runs.add(os.path.normpath(args.out))
+            return
         if args.algo in state.trained_algos:
             return  # parsed; one tiny run per algorithm and file is enough
         state.trained_algos.add(args.algo)
-        if args.out and args.algo in _TRAINED:  # this process ran it already: the same tiny run, copied
-            shutil.copytree(_TRAINED[args.algo], args.out)
-            state.runs.add(os.path.normpath(args.out))
-            return
         before = set(Path.cwd().glob("**/run.json"))
         run_cli([*argv, *TINY_BUDGET, *quiet_preset_options(args.algo)])
         (run_file,) = set(Path.cwd().glob("**/run.json")) - before  # the run directory, wherever the CLI put it
