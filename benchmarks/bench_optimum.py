@@ -9,7 +9,7 @@
   ``examples/sfols_four_room.py`` (the quality reference of its GPI curve).
 * **Rounds of two weights** (two agents, as MA-SFOLS hands them out): with the exact oracle, the best value over the
   policies found, as a fraction of the optimum (mean over the 12 test weights), after each of the first 8 rounds, for
-  ``OLSSchedule(batch="top")`` (Algorithm 1) and ``batch="spread"``.
+  ``OLSSchedule(batch="top")`` (Algorithm 1) and ``batch="same-after-extrema"``.
 """
 
 from __future__ import annotations

@@ -20,8 +20,8 @@ from benchmarks._common import Row
 from sb3_sfgpi.sweep import RunSpec, grid, run_sweep, train_run
 
 #: About 3 s per run on one core: short episodes, two small iterations, two test weights, no validation.
-TINY = ("--env", "max_steps=30", "--iterations", "2", "--steps-per-iteration", "1000", "--n-test-weights", "2",
-        "--validation-weights", "0")  # fmt: skip
+TINY = ("--env", "max_steps=30", "--iterations", "2", "--steps-per-iteration", "1000",
+        "--set", "n_test_weights=2", "--set", "validation_weights=0")  # fmt: skip
 
 
 def run(quick: bool = False) -> list[Row]:

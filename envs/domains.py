@@ -15,33 +15,19 @@ def four_room() -> dict[str, Any]:
 
     Each agent observes its cell and the objects it has collected itself (``observation_mode="own"``); the other
     agent stays unobserved, as in the paper. With the cell alone (``"xy"``) the task is not Markov even for one
-    agent: a cell next to an object keeps the object's value after it is taken, and greedy tables walk back and
-    forth onto the empty cell for the rest of the episode. With every gone object (``"full"``) a policy learns to
-    wait for the other learner's collections, and under GPI, next to a partner that behaves differently, it waits
-    for ever. Measured over 10 iterations of 3 seeds of both algorithms (README "Four-Room"): GPI's mean w·return
-    0.20-0.54 with ``"xy"``, 0.65-1.08 with ``"full"``, 0.84-1.32 with ``"own"``.
+    agent: a cell next to an object keeps the object's value after it is taken. With every gone object (``"full"``)
+    a policy learns to wait for the other learner's collections, and under GPI, next to a partner that behaves
+    differently, it waits for ever.
 
     The learners plan on their replay buffer's model and explore optimistically (``planning_sweeps``,
-    ``optimistic_init``), and a new policy joins Π only if GPI does no worse with it on the simplex extrema and 100
-    Dirichlet(1) validation weights (``validation_weights``): without validation GPI fell from 1.289 at iteration 4
-    to 1.159 at 10 (3 seeds), with it the curve ends at its best. After every iteration validation also retires the
-    policies without which GPI does better (``prune``): 1.303 ± 0.015 → 1.322 ± 0.006 at iteration 10 with 12
-    validation weights; 100 instead of 12 judge GPI over the Dirichlet(1) weights closely enough not to admit
-    policies that only tie on a few: 1.330 ± 0.005 → 1.336 ± 0.000 (README "Four-Room"). An iteration's policies left
-    out one by one are then tried together (``admit_together``): two agents' policies can each mislead GPI alone and
-    help it together. The same on those three seeds; Random + GPI over seeds 0–5 1.290 ± 0.100 → 1.330 ± 0.012 (its
-    seed 3 1.067 → 1.306).
-
-    Each agent has its own learner, as in the paper. One learner that both agents act with and feed
-    (``--sharing shared``, one weight per iteration) ends higher, 1.329 ± 0.001 → 1.336 ± 0.004 on today's code, and
-    starts lower (iteration 1: 1.028 → 0.907, behind Random + GPI at every iteration; README "Four-Room"). A learner
-    per agent fed the transitions of the agents training for its weights (``--sharing experience``) ends lower,
-    1.313 ± 0.012.
-
-    ε falls from 1 to 0.05 over half of each learner's steps. Over a tenth of them a pair of one iteration did as well
-    at its own weight as a pair of ten (at [0.40, 0.59, 0.01]), but GPI ends lower: 1.294 ± 0.016 (0.3: 1.309 ± 0.016,
-    0.8: 1.323 ± 0.009, the preset's 0.5: 1.329 ± 0.001; 3 seeds, README "Four-Room"). Ending at 0.01 instead of the
-    paper's 0.05 raises GPI (1.334 ± 0.008) and the learners trained a priori alike (1.332 → 1.337): 0.998× either way.
+    ``optimistic_init``). A new policy joins Π only if GPI does no worse with it on the simplex extrema and 100
+    Dirichlet(1) validation weights (enough that a policy which only ties on a few weights and is worse elsewhere
+    stays out); after every iteration validation also retires the policies without which GPI does better
+    (``prune``), and an iteration's policies left out one by one are tried together (``admit_together``: two
+    agents' policies can mislead GPI alone and help it together). Once the simplex extrema are handed out, both
+    agents train for the top corner weight (``ols_batch="same-after-extrema"``), beside a partner acting for it as
+    at execution. Each agent has its own learner, as in the paper. What each choice was measured to do, and the
+    alternatives that lost: docs, experiments/levers.
     """
     from sfgpi_envs.four_room import FourRoomParallelEnv
 
@@ -57,8 +43,7 @@ def four_room() -> dict[str, Any]:
             "learning_starts": 0,
             "train_freq": 1,
             "exploration_initial_eps": 1.0,
-            # ε falls over half of each learner's steps: over 0.1, 0.3 or 0.8 of them GPI ends lower (README)
-            "exploration_fraction": 0.5,
+            "exploration_fraction": 0.5,  # ε falls over half of each learner's steps
             "exploration_final_eps": 0.05,
             "planning_sweeps": 60,  # Dyna: sweeps of the SF backup on the replay buffer's model, every 5,000 steps
             "optimistic_init": 1.25,  # optimism in the face of the untried pairs, settled at the end of learn()
@@ -66,17 +51,11 @@ def four_room() -> dict[str, Any]:
         "steps_per_iteration": 50_000,
         "iterations": 10,
         "n_test_weights": 12,
-        # the extrema one per agent (Algorithm 1), then both agents train for the top corner weight, beside a partner
-        # acting for it as at execution: 1.322 ± 0.006 -> 1.330 ± 0.005 at iteration 10, the same before (README)
-        "ols_batch": "same-after-extrema",
-        # a new policy joins Π only if GPI does no worse with it on validation weights: 100, not 12, so that a policy
-        # that only ties on a few weights and is worse elsewhere stays out (1.330 ± 0.005 -> 1.336 ± 0.000, README)
-        "validation_weights": 100,
+        "ols_batch": "same-after-extrema",  # the extrema one per agent (Algorithm 1), then the top corner for both
+        "validation_weights": 100,  # a new policy joins Π only if GPI does no worse with it on these weights
         "prune": True,  # and a policy leaves Π when GPI does better without it
-        # an iteration's policies left out one by one are tried together: two agents' policies can mislead GPI alone
-        # and help it together (Random + GPI, seeds 0-5: 1.290 ± 0.100 -> 1.330 ± 0.012; MA-SFOLS the same, README)
-        "admit_together": True,
-        "sharing": "independent",  # the paper's decentralised learners, one per agent ("shared": see above)
+        "admit_together": True,  # an iteration's policies left out one by one are tried together
+        "sharing": "independent",  # the paper's decentralised learners, one per agent
         "objectives": ["blue squares", "green triangles", "red circles"],  # objects collected, one reward each
         "value_episodes": 1,
         "eval_episodes": 1,
@@ -87,35 +66,26 @@ def traffic() -> dict[str, Any]:
     """
     The paper's three-intersection SUMO scenario with pedestrians (Sec. 5.2): an MLP SFDQN per traffic light.
 
-    Budget: up to ``iterations x steps_per_iteration`` joint steps (5 simulated seconds each) per agent, plus
-    after every iteration one value episode per new policy and a GPI episode for each of the 25 test weights
-    (in ``eval_workers`` processes), and the validation of the new policies: about 15-30 minutes on two cores.
+    Budget: up to ``iterations x steps_per_iteration`` joint steps (5 simulated seconds each) per agent, plus after
+    every iteration one value episode per new policy, a GPI episode for each of the 25 test weights (in
+    ``eval_workers`` processes) and the validation of the new policies.
 
-    Since 2026-11-25 (issue 10; README "Traffic", 3 seeds): each step's reward is minus the waiting spent in it
-    (``objectives=["vehicle_delay", "pedestrian_delay"]``), a green cut short by the minimum green is deferred rather
-    than ignored (``early_change="defer"``), the learning rate falls from 10^-3 to 0 over each iteration
-    (``"lin_0.001"``), and MA-SFOLS trains 2 iterations of 12,000 steps rather than 3 of 8,000 (the same maximum). GPI
-    at [1, 0] keeps vehicles waiting 4.00 s (SUMO's actuated program 4.48 s; the previous preset 5.56 s), pedestrians
-    at [0, 1] 2.47 s (5.11 s), and GPI's w·return is within 5% of the scalarised learners at [0.5, 0.5], [0.4, 0.6]
-    and [0.2, 0.8] (+1.4%, -4.3%, -3.5%). With 3 x 8,000 steps the same configuration kept GPI 9.6% below them at
-    [0.2, 0.8]: the policies trained near that weight had 8,000 steps. Pessimistic SFs (``n_critics=2``) did worse.
+    Each step's reward is minus the waiting spent in it (``objectives=["vehicle_delay", "pedestrian_delay"]``), a
+    green cut short by the minimum green is deferred rather than ignored (``early_change="defer"``), and the learning
+    rate falls from 10^-3 to 0 over each iteration (``"lin_0.001"``). Two long iterations rather than three short
+    ones: the policies trained near the pedestrian-heavy weights need the steps. Rewards are scaled per objective
+    to per-step values of order one, with a factor between the objectives that puts the knee of the front near the
+    middle of the simplex; episode metrics and infos stay in seconds.
 
-    Rewards are scaled per objective, vehicles x 0.01 and pedestrians x 0.025: per-step rewards of order one for the
-    networks, and a factor 2.5 between the objectives that puts the knee of the front near the middle of the simplex
-    (with x 0.25, set for Eq. 24's rewards, the pedestrians outweigh the vehicles at every weight but [1, 0]).
-    Episode metrics and infos stay in seconds.
-
-    Values are estimated with each new policy run at all three intersections (``value_mode="shared"``) and GPI
-    acts over the policies whose values form the CCS (``gpi_set="ccs"``): dominated policies' SFs only mislead it.
-    Π is validated and pruned as in ``four-room`` (``validation_weights``, ``prune``): a policy joins Π only if GPI
-    does no worse with it on 12 validation weights, and leaves it when GPI does better without it. Validation costs
-    15 GPI episodes per candidate. Four-Room's ``admit_together`` is off: on the earlier preset's three seeds it tried
-    an iteration's left-out policies together 4 times and kept them out every time (GPI 0.02-0.10 lower).
+    Values are estimated with each new policy run at all three intersections (``value_mode="shared"``, comparable
+    across agents) and GPI acts over the policies whose values form the CCS (``gpi_set="ccs"``): dominated
+    policies' SFs only mislead it. Π is validated and pruned as in ``four-room``, on 12 validation weights.
 
     Eq. 24's rewards (the paper's: decreases of the accumulated waiting times): ``--env 'objectives=
-    ["vehicle_waiting", "pedestrian_waiting"]'`` (scaled x 0.01 and x 0.25). Another network: ``--env net_file=NET
-    --env route_file=ROUTES`` (and ``--env 'objectives=["vehicle_delay", "co2"]'`` where it has no pedestrian
-    crossings); MA-SFOLS needs lights with the same observation and action spaces (the same lanes and green phases).
+    ["vehicle_waiting", "pedestrian_waiting"]'``. Another network: ``--env net_file=NET --env route_file=ROUTES``
+    (and ``--env 'objectives=["vehicle_delay", "co2"]'`` where it has no pedestrian crossings); MA-SFOLS needs
+    lights with the same observation and action spaces (the same lanes and green phases). Measurements: docs,
+    experiments/traffic and experiments/levers.
     """
     from sfgpi_envs.traffic import TrafficSignalEnv
 
@@ -128,8 +98,8 @@ def traffic() -> dict[str, Any]:
             "max_green": 50,
             "objectives": ["vehicle_delay", "pedestrian_delay"],  # minus the waiting spent in each step (see above)
             "early_change": "defer",  # a change asked before the minimum green is made when it ends
-            # vehicles, pedestrians: see above; the other objectives of the menu (chosen with `--env objectives=[...]`)
-            # scaled to per-step rewards of the order of the vehicles' on the default network under random actions
+            # per-step rewards of order one; the other objectives of the menu (chosen with `--env objectives=[...]`)
+            # scaled to the order of the vehicles' on the default network under random actions
             "reward_scale": {
                 "vehicle_waiting": 0.01,
                 "pedestrian_waiting": 0.25,
@@ -153,7 +123,7 @@ def traffic() -> dict[str, Any]:
             "exploration_final_eps": 0.05,
             "policy_kwargs": {"net_arch": [64, 64]},
         },
-        "steps_per_iteration": 12_000,  # 2 x 12,000 rather than 3 x 8,000: longer-trained policies (see above)
+        "steps_per_iteration": 12_000,  # two long iterations rather than three short ones (see above)
         "iterations": 2,
         "n_test_weights": 25,
         "value_episodes": 1,

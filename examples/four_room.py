@@ -58,7 +58,7 @@ def observation_mode(env_overrides: list[str]) -> str:
 
 
 #: What the figure's title says of the learners: nothing for one per agent (the paper's).
-SHARING_TITLES = {"shared": ", one learner shared by both agents", "experience": ", learners fed by both agents"}
+SHARING_TITLES = {"shared": ", one learner shared by both agents"}
 
 
 def shared_title(sharing: str | None) -> str:
@@ -106,7 +106,7 @@ def run_options(args: argparse.Namespace) -> list[str]:
     if args.steps_per_iteration:
         extra += ["--steps-per-iteration", str(args.steps_per_iteration)]
     if args.sharing:
-        extra += ["--sharing", args.sharing]
+        extra += ["--set", f"sharing={args.sharing}"]
     return extra
 
 
@@ -150,7 +150,7 @@ def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
     iterations = args.iterations or preset.iterations
     budget = iterations * (args.steps_per_iteration or preset.steps_per_iteration)
     weights = random_weights(3, preset.n_test_weights, rng=0)  # MASFOLS's test weights
-    sharing = ["--sharing", args.sharing] if args.sharing else []
+    sharing = ["--set", f"sharing={args.sharing}"] if args.sharing else []
     options = (*(item for item in extra if item.startswith("--env")), *sharing, "--iterations", "1")
     return [
         RunSpec(

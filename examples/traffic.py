@@ -232,7 +232,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def run(args: argparse.Namespace) -> list[tuple[str, bool, str]]:
     budget = ["--iterations", str(args.iterations), "--steps-per-iteration", str(args.steps_per_iteration)]
-    common = (*budget, "--eval-workers", str(args.eval_workers))
+    common = (*budget, "--set", f"eval_workers={args.eval_workers}")
     masfols = [args.out / f"ma-sfols-s{seed}" for seed in args.seeds]
     runs = list(zip(args.seeds, masfols, strict=True))
     _train(args, [RunSpec("traffic", "ma-sfols", seed, None, common, run_dir.name) for seed, run_dir in runs])

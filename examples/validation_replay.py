@@ -1,12 +1,12 @@
 """Replay policy validation over a run that kept every candidate policy, without training again.
 
 Validation leaves training as it is: whichever policies join Π, the weights trained, the learners and their
-policies are the same (a left-out policy's value still goes to the schedule), unless Π is in the training loop
-(``--transfer``, ``--gpi-behaviour``, ``--value-mode gpi``: such runs are refused). A run trained with
-``--validation-weights 0 --no-prune`` keeps every candidate in its policy set, so validation's rules can be replayed
-over it: the replay gives, to the last digit on the same machine, the curve of a run trained with those rules
-(``tests/test_validation_replay.py`` checks it). After every iteration, as
-:class:`~sb3_sfgpi.callbacks.PolicyValidation` does it:
+policies are the same (a left-out policy's value still goes to the schedule). A run trained with
+``--set validation_weights=0`` keeps every candidate in its policy set, so validation's rules can be replayed over it:
+the replay gives, to the last digit on the same machine, the curve of a run trained with those rules
+(``tests/test_validation_replay.py`` checks it). Runs of levers that put Π in the training loop (transfer, GPI
+behaviour, GPI values, replanning: written by older versions, which had them) are refused. After every iteration, as
+:class:`~sb3_sfgpi.admission.Admission` does it:
 
 * the iteration's new policies, one by one, join Π unless GPI does worse with them on the validation weights;
 * ``--admit-together``: those left out are then tried together;
@@ -19,8 +19,8 @@ evaluation: its episodes and seeds), then the final members of Π. Scores are ca
 score per set tried.
 
 Run: ``python examples/validation_replay.py RUN_DIR [--validation-weights N] [--[no-]admit-together] [--[no-]prune]
-[--recall]`` (the options as ``sb3-sfgpi train``'s, the domain's by default), e.g. over a run of ``sb3-sfgpi train
-four-room --validation-weights 0 --no-prune --no-admit-together``.
+[--recall]`` (the rules of ``sb3-sfgpi train``'s ``--set validation_weights=N prune=... admit_together=...``, the
+domain's by default), e.g. over a run of ``sb3-sfgpi train four-room --set validation_weights=0``.
 """
 
 from __future__ import annotations
@@ -30,12 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from sb3_sfgpi.callbacks import PolicyValidation
+from sb3_sfgpi.admission import Admission
+from sb3_sfgpi.callbacks import VALUE_MODES
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.evaluation import gpi_score
-from sb3_sfgpi.masfols import SETTING_DEFAULTS
+from sb3_sfgpi.masfols import REMOVED_SETTINGS, SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
 
 
@@ -49,7 +50,7 @@ class Candidates:
     :param validation: the validation weights and episodes to score with
     """
 
-    def __init__(self, run_dir: RunDirectory, config: dict[str, Any], env: Any, validation: PolicyValidation):
+    def __init__(self, run_dir: RunDirectory, config: dict[str, Any], env: Any, validation: Admission):
         state = run_dir.read_checkpoint()
         self.record = run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
         self.iterations = state["iteration"]
@@ -157,10 +158,12 @@ def load(args: argparse.Namespace) -> tuple[Candidates, bool, bool]:
     if config["algorithm"] == "fixed":
         raise ValueError(f"{args.run_dir} is a run of fixed weights: its agents act by their own policies")
     if config["validation_weights"] or config["prune"]:
-        raise ValueError(f"{args.run_dir} was trained with validation: replay needs --validation-weights 0 --no-prune")
-    if config.get("transfer") or config["gpi_behaviour"] or config.get("value_mode") == "gpi":
-        raise ValueError(f"{args.run_dir} trained with Π in the loop (transfer, GPI behaviour or GPI values): "
-                         "validation would have changed its candidates")  # fmt: skip
+        raise ValueError(f"{args.run_dir} was trained with validation: replay needs --set validation_weights=0")
+    removed = [key for key, off in REMOVED_SETTINGS.items() if config.get(key, off) != off]
+    if removed or config.get("value_mode", "joint") not in VALUE_MODES:
+        levers = removed or [f"value_mode={config['value_mode']}"]
+        raise ValueError(f"{args.run_dir} was trained with {', '.join(levers)}, levers this version removed "
+                         "(Π in the training loop: validation would have changed its candidates)")  # fmt: skip
     preset = load_domain(config["domain"])
     n_weights = preset.validation_weights if args.validation_weights is None else args.validation_weights
     if n_weights < 1:
@@ -169,7 +172,7 @@ def load(args: argparse.Namespace) -> tuple[Candidates, bool, bool]:
     pruning = preset.prune if args.prune is None else args.prune
     env = preset.build_env(config["env_kwargs"])
     try:
-        return Candidates(run_dir, config, env, PolicyValidation(n_weights)), together, pruning
+        return Candidates(run_dir, config, env, Admission(n_weights)), together, pruning
     except ValueError:
         env.close()
         raise
@@ -177,7 +180,7 @@ def load(args: argparse.Namespace) -> tuple[Candidates, bool, bool]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir", help="a run of sb3-sfgpi train with --validation-weights 0 --no-prune")
+    parser.add_argument("run_dir", help="a run of sb3-sfgpi train with --set validation_weights=0")
     parser.add_argument("--validation-weights", type=int, metavar="N", help="Dirichlet(1) weights (the domain's)")
     flag = argparse.BooleanOptionalAction
     parser.add_argument("--admit-together", action=flag, help="try left-out policies together (the domain's)")

@@ -1,7 +1,9 @@
 """sb3-sfgpi: successor features, OLS and GPI for Stable-Baselines3."""
 
-from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, PolicyValidation, ValueEstimation
+from sb3_sfgpi.admission import Admission
+from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation
 from sb3_sfgpi.common.parallel_wrappers import FlattenObservations, SwapTerminationsTruncations
+from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.multiagent import MultiAgentRunner
@@ -15,6 +17,7 @@ __all__ = [
     "MASFOLS",
     "OLS",
     "SFDQN",
+    "Admission",
     "EvaluationConfig",
     "FixedSchedule",
     "FlattenObservations",
@@ -22,7 +25,6 @@ __all__ = [
     "MultiAgentRunner",
     "OLSCallback",
     "OLSSchedule",
-    "PolicyValidation",
     "RandomSchedule",
     "RunDirectory",
     "SwapTerminationsTruncations",

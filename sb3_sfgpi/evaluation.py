@@ -16,19 +16,24 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from pettingzoo import ParallelEnv
+from tqdm.auto import tqdm
 
 from sb3_sfgpi.common.metrics import expected_utility
 from sb3_sfgpi.common.parallel_wrappers import flattened
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.serialization import jsonable
+from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
+
+#: Runs a joint policy for some episodes from a seed (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.rollout`).
+Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
 
 
 def _no_actions(observations: dict[str, Any]) -> dict[str, Any]:
@@ -298,7 +303,7 @@ def summarize_test_episodes(
 def gpi_score(
     policy_set: GPIPolicy,
     weights: np.ndarray,
-    rollout: Callable[[JointPolicy, int, int], EpisodeReturns],
+    rollout: Rollout,
     episodes: int,
     seed: int,
     purpose: str,
@@ -316,3 +321,117 @@ def gpi_score(
         rollout(policy_set.joint_policy(w), episodes, derive_seed(seed, purpose, i)) for i, w in enumerate(weights)
     ]
     return summarize_test_episodes(weights, returns)[0]["mean_return"]
+
+
+# --- GPI on the test weights after every iteration -------------------------------------------------------
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """
+    How GPI over Π is evaluated after every iteration.
+
+    :param test_weights: the weights GPI acts for, shape ``(n, d)`` (:class:`~sb3_sfgpi.masfols.MASFOLS` also takes
+        a number of Dirichlet(1) weights, or None for its default)
+    :param episodes: episodes per test weight
+    :param policies: ``"shared"``: every agent acts by GPI over the whole Π; ``"own"``: each agent over the
+        policies it learned itself (the evaluation of independent fixed-weight learners)
+    :param gpi_set: ``"all"`` of Π, or only the policies whose values form Π's CCS (``"ccs"``)
+    :param workers: 0: in this process on the training env; ``n > 0``: in ``n`` worker processes (kept for the
+        whole run), each with its own env ``env_fn(**env_kwargs)``; they load Π from the run directory
+    :param env_fn: picklable env constructor of the workers (required when ``workers > 0``)
+    :param env_kwargs: its keyword arguments (they should build the same env as the training one)
+    :param hypervolume_reference: reference point of the hypervolume of Π's CCS (None: not computed)
+    """
+
+    test_weights: Any = None
+    episodes: int = 1
+    policies: str = "shared"
+    gpi_set: str = "all"
+    workers: int = 0
+    env_fn: Callable[..., Any] | None = None
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    hypervolume_reference: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.test_weights is not None and np.ndim(self.test_weights) > 0:
+            object.__setattr__(self, "test_weights", np.asarray(self.test_weights, dtype=np.float64))
+        if self.policies not in ("shared", "own"):
+            raise ValueError(f"policies must be 'shared' or 'own', got {self.policies!r}")
+        if self.gpi_set not in ("all", "ccs"):
+            raise ValueError(f"gpi_set must be 'all' or 'ccs', got {self.gpi_set!r}")
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 0:
+            raise ValueError(f"workers must be a non-negative integer, got {self.workers!r}")
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be at least 1, got {self.episodes}")
+
+    @property
+    def ccs_only(self) -> bool:
+        """Whether GPI acts over Π's CCS only (never for ``policies="own"``)."""
+        return self.gpi_set == "ccs" and self.policies != "own"
+
+
+class TestEvaluation:
+    """
+    GPI over Π on the test weights (the curve of the paper's Figs. 4 and 7): for each test weight every agent
+    acts by GPI, in this process or in worker processes kept for the whole run.
+
+    :param config: what to evaluate and where
+    :param rollout: runs a joint policy on the training env (the in-process evaluation)
+    :param reward_dim: the number of objectives (the test weights are checked against it)
+    :param seed: the run's seed: the episodes of test weight ``i`` start from ``derive_seed(seed, "eval", i)``
+    :param agents: the env's agents (for ``policies="own"``)
+    :raises ValueError: a test weight of the wrong length, negative or all zero
+    """
+
+    __test__ = False  # not a pytest test class
+
+    def __init__(self, config: EvaluationConfig, rollout: Rollout, reward_dim: int, seed: int, agents: list[str]):
+        if config.workers > 0 and config.env_fn is None:
+            raise ValueError("an evaluation with workers > 0 needs env_fn (and env_kwargs) to build the workers' envs")
+        if config.test_weights is None or np.ndim(config.test_weights) != 2:
+            raise ValueError(f"test_weights must be an array of shape (n, d), got {config.test_weights!r}")
+        self.config = config
+        self.weights = np.array([validate_weights(w, reward_dim, "test weight") for w in config.test_weights])
+        self.seeds = [derive_seed(seed, "eval", i) for i in range(len(self.weights))]
+        self._rollout, self._agents = rollout, agents
+        self._pool: ParallelEvaluator | None = None
+
+    def policies(self, policy_set: GPIPolicy) -> GPIPolicy:
+        """The policies GPI acts over: Π, or its CCS (``gpi_set="ccs"``)."""
+        return policy_set.ccs_policies() if self.config.ccs_only else policy_set
+
+    def run(
+        self, policy_set: GPIPolicy, policy_dir: Path | None, gamma: float, progress_bar: bool = False
+    ) -> tuple[dict[str, float], list[dict[str, Any]]]:
+        """
+        Evaluate GPI over ``policy_set`` (saved in ``policy_dir`` for the workers).
+
+        :param gamma: discount of the returns (the workers')
+        :return: the summary metrics and the per-weight details (:func:`summarize_test_episodes`)
+        """
+        return summarize_test_episodes(self.weights, self._episodes(policy_set, policy_dir, gamma, progress_bar))
+
+    def _episodes(
+        self, policy_set: GPIPolicy, policy_dir: Path | None, gamma: float, progress_bar: bool
+    ) -> list[EpisodeReturns]:
+        config, own = self.config, self.config.policies == "own"
+        if config.workers > 0:
+            assert policy_dir is not None and config.env_fn is not None
+            if self._pool is None:
+                self._pool = ParallelEvaluator(config.env_fn, config.env_kwargs, config.workers, gamma)
+            jobs = [
+                EvaluationJob(seed, tuple(w), config.episodes, str(policy_dir), own, ccs_only=config.ccs_only)
+                for w, seed in zip(self.weights, self.seeds, strict=True)
+            ]
+            return self._pool.run(jobs)
+        acting, agents = self.policies(policy_set), self._agents if own else None
+        bar = tqdm(self.weights, desc="evaluating GPI", unit="w", leave=False, disable=not progress_bar)
+        return [
+            self._rollout(acting.joint_policy(w, agents), config.episodes, seed)
+            for w, seed in zip(bar, self.seeds, strict=True)
+        ]
+
+    def close(self) -> None:
+        """Stop the worker processes, if any (a later :meth:`run` starts new ones)."""
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None

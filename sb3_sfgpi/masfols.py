@@ -1,13 +1,15 @@
 """MASFOLS: MA-SFOLS + GPI in one object, built from the runner and the callback (no logic of its own).
 
 ``MASFOLS(env, ...)`` makes a :class:`~sb3_sfgpi.multiagent.MultiAgentRunner` (one SFDQN per agent) and an
-:class:`~sb3_sfgpi.callbacks.OLSCallback` with a :mod:`schedule <sb3_sfgpi.schedules>`; :meth:`MASFOLS.learn`
-runs them; :attr:`MASFOLS.policy_set` is Π as a :class:`~sb3_sfgpi.gpi.GPIPolicy`. With a ``run_dir`` the run
-writes its settings to ``run.json`` and continues from its directory with :meth:`MASFOLS.load`.
+:class:`~sb3_sfgpi.callbacks.OLSCallback` with a :mod:`schedule <sb3_sfgpi.schedules>` and an
+:class:`~sb3_sfgpi.admission.Admission`; :meth:`MASFOLS.learn` runs them; :attr:`MASFOLS.policy_set` is Π as a
+:class:`~sb3_sfgpi.gpi.GPIPolicy`. With a ``run_dir`` the run writes its settings to ``run.json`` and continues
+from its directory with :meth:`MASFOLS.load`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -17,14 +19,16 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.type_aliases import MaybeCallback
 
-from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback, PolicyValidation, ValueEstimation
+from sb3_sfgpi.admission import Admission
+from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import SHARED, MultiAgentRunner, default_learner_factory
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.schedules import make_schedule
 
-#: The settings stored in ``run.json`` (the arguments of :class:`MASFOLS` that are plain data).
+#: The settings stored in ``run.json`` (what :meth:`MASFOLS.load` rebuilds a run from).
 SETTINGS = (
     "policy",
     "weights",
@@ -37,12 +41,9 @@ SETTINGS = (
     "value_episodes",
     "eval_episodes",
     "gpi_set",
-    "transfer",
-    "gpi_behaviour",
     "validation_weights",
     "prune",
     "admit_together",
-    "replan",
     "sharing",
     "n_envs",
 )
@@ -54,9 +55,10 @@ SETTING_DEFAULTS = {
     "sharing": "independent",
     "n_envs": 1,
     "ols_batch": "top",
-    "gpi_behaviour": False,
-    "replan": False,
 }
+#: Settings of levers that were measured and removed (docs: experiments/levers), with the value that means "off":
+#: a run stored with another value cannot be continued by this version.
+REMOVED_SETTINGS = {"transfer": False, "gpi_behaviour": False, "replan": False}
 
 
 def acts_by_own_policies(fixed: bool, sharing: str) -> bool:
@@ -76,55 +78,29 @@ class MASFOLS:
     :param policy: the learners' SFDQN policy, ``"TabularPolicy"`` or ``"MlpPolicy"``
     :param weights: ``"ols"`` (MA-SFOLS), ``"random"`` (Random + GPI: Dirichlet(1) weights) or array-like fixed
         weights (a priori scalarised learners: every agent trains for them; each agent is evaluated by GPI over
-        its own policies, at these weights unless ``test_weights`` says otherwise)
+        its own policies, at these weights unless the evaluation's ``test_weights`` say otherwise)
     :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue: ``"top"``, the
-        highest priorities (Algorithm 1); ``"spread"``, each agent's weight ranked as if the weights handed out
-        before it in the iteration brought no improvement; ``"same"``, the highest one for every agent;
-        ``"same-after-extrema"``, ``"top"`` while simplex extrema are queued, ``"same"`` after (see
+        highest priorities (Algorithm 1), or ``"same-after-extrema"`` (see
         :class:`~sb3_sfgpi.schedules.OLSSchedule`; only with ``weights="ols"``)
     :param steps_per_iteration: joint env steps every agent trains for its weights in one iteration
     :param learner_kwargs: further SFDQN arguments of the learners (learning rate, γ, exploration, ...)
-    :param test_weights: the weights GPI is evaluated on after every iteration: an array ``(n, d)``, or a number
-        ``n`` of Dirichlet(1) weights drawn with seed 0 (default 12)
-    :param seed: the run's seed (learners, resets and random weights derive theirs from it)
-    :param run_dir: where Π, evaluations, checkpoints and logs go (None: nowhere)
-    :param value_mode: see :class:`~sb3_sfgpi.callbacks.ValueEstimation`
-    :param value_episodes: episodes of each value estimate
-    :param eval_episodes: episodes per test weight of the GPI evaluation
-    :param gpi_set: GPI over ``"all"`` of Π or over its CCS (``"ccs"``)
-    :param transfer: start each new learner from the policy of Π best for its weights
-    :param gpi_behaviour: each new learner acts ε-greedily by GPI over Π and itself (SFOLS's behaviour; see
-        :class:`~sb3_sfgpi.callbacks.OLSCallback`)
-    :param validation_weights: a new policy joins Π only if GPI does at least as well with it on the simplex
-        extrema and this many Dirichlet(1) validation weights (see :class:`~sb3_sfgpi.callbacks.PolicyValidation`;
-        0: every new policy joins, as in the paper; not for fixed weights)
-    :param prune: after every iteration, also retire from Π the policies without which GPI does better on the
-        validation weights (needs ``validation_weights > 0``; see :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
-    :param admit_together: after the one-by-one admission of an iteration, also try its policies left out together:
-        they join Π together if GPI does no worse with them all (needs ``validation_weights > 0``; nothing to do with
-        ``sharing="shared"``: one policy per iteration)
-    :param replan: old policies keep learning (``TabularPolicy`` only): after every iteration, every policy of Π and
-        every new one is planned afresh, for its own weights, on the run's experience, every transition recorded by
-        every learner so far (see :meth:`~sb3_sfgpi.callbacks.OLSCallback._replan`)
-    :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (every iteration
-        trains as many weights as there are agents: the paper's setting); ``"shared"``: parameter sharing, one
-        learner per iteration that every agent acts with and feeds (one weight per iteration, trained on all the
-        agents' transitions; for many homogeneous agents); ``"experience"``: one learner per agent, for its own
-        weights, that also stores the transitions of the other agents training for the same weights (experience
-        sharing: in the rounds where several agents train for one weight, e.g. ``ols_batch="same"``, and with fixed
-        weights). See :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`
+    :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (the paper's
+        setting); ``"shared"``: parameter sharing, one learner per iteration that every agent acts with and feeds
+        (one weight per iteration, trained on all the agents' transitions; for many homogeneous agents)
+    :param values: how the value vector of a new policy is estimated (default: the new learners acting together)
+    :param admission: which new policies join Π (default: every one, as in the paper)
+    :param evaluation: how GPI is evaluated after every iteration: its ``test_weights`` are an array ``(n, d)``, a
+        number ``n`` of Dirichlet(1) weights drawn with seed 0, or None (12 such weights; fixed weights: those);
+        ``workers > 0`` evaluates in worker processes built by its ``env_fn`` (default: this ``env_fn``)
     :param n_envs: train on this many copies of the env, each in its own process (``env_fn``), stepped together: a
-        learner has a slot per agent and copy. An iteration's ``steps_per_iteration`` joint steps then give
-        ``n_envs`` times as many transitions. 1: train on ``env`` (evaluations always run on ``env``)
-    :param env_fn: picklable env constructor of the copies (required when ``n_envs > 1``), and of the evaluation
-        workers unless ``eval_env_fn`` is given
-    :param env_kwargs: its keyword arguments
-    :param eval_workers: evaluate GPI in this many worker processes (0: in this process)
-    :param eval_env_fn: picklable env constructor of the workers (default: ``env_fn``; required when
-        ``eval_workers > 0`` and there is no ``env_fn``)
-    :param eval_env_kwargs: its keyword arguments (default: ``env_kwargs``)
-    :param run_info: more plain data to store in ``run.json`` (e.g. the CLI's domain and env arguments)
-    :param verbose: 1 prints a line per iteration
+        learner has a slot per agent and copy. 1: train on ``env`` (evaluations always run on ``env``)
+    :param env_fn: picklable constructor of the env's copies and of the evaluation workers, called without
+        arguments (e.g. ``functools.partial(MyEnv, **kwargs)``): required when ``n_envs > 1`` or the evaluation
+        has workers of its own
+    :param seed: the run's seed (learners, resets and random weights derive theirs from it)
+    :param run_dir: where Π, evaluations, checkpoints and logs go (None: nowhere). :attr:`run_info` is written to
+        its ``run.json`` when :meth:`learn` starts
+    :param verbose: 1 prints a line per iteration, and the policies validation leaves out or retires
     :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them)
     """
 
@@ -136,32 +112,18 @@ class MASFOLS:
         ols_batch: str = "top",
         steps_per_iteration: int = 10_000,
         learner_kwargs: Mapping[str, Any] | None = None,
-        test_weights: int | np.ndarray | Sequence[Sequence[float]] | None = None,
+        sharing: str = "independent",
+        values: ValueEstimation | None = None,
+        admission: Admission | None = None,
+        evaluation: EvaluationConfig | None = None,
+        n_envs: int = 1,
+        env_fn: Callable[[], ParallelEnv] | None = None,
         seed: int = 0,
         run_dir: str | Path | None = None,
-        value_mode: str = "joint",
-        value_episodes: int = 1,
-        eval_episodes: int = 1,
-        gpi_set: str = "all",
-        transfer: bool = False,
-        gpi_behaviour: bool = False,
-        validation_weights: int = 0,
-        prune: bool = False,
-        admit_together: bool = False,
-        replan: bool = False,
-        sharing: str = "independent",
-        n_envs: int = 1,
-        env_fn: Callable[..., ParallelEnv] | None = None,
-        env_kwargs: Mapping[str, Any] | None = None,
-        eval_workers: int = 0,
-        eval_env_fn: Callable[..., ParallelEnv] | None = None,
-        eval_env_kwargs: Mapping[str, Any] | None = None,
-        run_info: Mapping[str, Any] | None = None,
         verbose: int = 0,
     ):
         learner_kwargs = dict(learner_kwargs or {})
-        if replan and policy != "TabularPolicy":
-            raise ValueError(f"replan plans tables: it needs policy='TabularPolicy', not {policy!r}")
+        values, admission = values or ValueEstimation(), admission or Admission(verbose=verbose)
         self.runner = MultiAgentRunner(
             env,
             default_learner_factory(policy=policy, **learner_kwargs),
@@ -171,11 +133,10 @@ class MASFOLS:
             sharing=sharing,
             n_envs=n_envs,
             env_fn=env_fn,
-            env_kwargs=env_kwargs,
         )
         self.runner.check_learner()
         fixed = not isinstance(weights, str)
-        test_weights = self._test_weights(test_weights, weights if fixed else None)
+        evaluation = self._evaluation(evaluation or EvaluationConfig(), weights if fixed else None, sharing, env_fn)
         self.run_dir = None if run_dir is None else RunDirectory(run_dir)
         self.settings = {
             "policy": policy,
@@ -183,51 +144,46 @@ class MASFOLS:
             "ols_batch": ols_batch,
             "steps_per_iteration": steps_per_iteration,
             "learner_kwargs": learner_kwargs,
-            "test_weights": test_weights.tolist(),
+            "test_weights": evaluation.test_weights.tolist(),
             "seed": seed,
-            "value_mode": value_mode,
-            "value_episodes": value_episodes,
-            "eval_episodes": eval_episodes,
-            "gpi_set": gpi_set,
-            "transfer": transfer,
-            "gpi_behaviour": gpi_behaviour,
-            "validation_weights": validation_weights,
-            "prune": prune,
-            "admit_together": admit_together,
-            "replan": replan,
+            "value_mode": values.mode,
+            "value_episodes": values.episodes,
+            "eval_episodes": evaluation.episodes,
+            "gpi_set": evaluation.gpi_set,
+            "validation_weights": admission.validation_weights,
+            "prune": admission.prune,
+            "admit_together": admission.together,
             "sharing": sharing,
             "n_envs": n_envs,
         }
-        policies = "own" if acts_by_own_policies(fixed, sharing) else "shared"
-        evaluation = EvaluationConfig(
-            test_weights, eval_episodes, policies, gpi_set, eval_workers,
-            eval_env_fn or env_fn, dict(eval_env_kwargs or env_kwargs or {}),
-        )  # fmt: skip
         self.callback = OLSCallback(
-            make_schedule(weights, ols_batch),
-            steps_per_iteration,
-            evaluation,
-            ValueEstimation(value_mode, value_episodes),
-            PolicyValidation(validation_weights, prune=prune, together=admit_together),
-            run_dir=self.run_dir,
-            transfer=transfer,
-            gpi_behaviour=gpi_behaviour,
-            replan=replan,
+            make_schedule(weights, ols_batch), steps_per_iteration, evaluation, values, admission, self.run_dir,
             verbose=verbose,
-        )
-        self.run_info = {**dict(run_info or {}), **self.settings}
+        )  # fmt: skip
+        #: What :meth:`learn` writes to ``run.json``: the settings, and any plain data added here (the CLI adds the
+        #: domain and the env's arguments)
+        self.run_info: dict[str, Any] = dict(self.settings)
         if self.run_dir is not None:
             self.runner.set_logger(self.run_dir.make_logger())
 
-    def _test_weights(self, test_weights: Any, fixed: Any) -> np.ndarray:
+    def _evaluation(
+        self, config: EvaluationConfig, fixed: Any, sharing: str, env_fn: Callable[[], ParallelEnv] | None
+    ) -> EvaluationConfig:
+        """The evaluation with its test weights drawn, its agents' policies chosen and its workers' env."""
+        test_weights = config.test_weights
         if test_weights is None and fixed is not None:
-            return np.array([fixed], dtype=np.float64)
-        if test_weights is None or isinstance(test_weights, (int, np.integer)):
+            test_weights = np.array([fixed], dtype=np.float64)
+        elif test_weights is None or np.ndim(test_weights) == 0:
             n = 12 if test_weights is None else int(test_weights)
             if n < 1:
                 raise ValueError(f"test_weights must be a positive number of weights or an array, got {n}")
-            return random_weights(self.runner.reward_dim, n, rng=0)
-        return np.asarray(test_weights, dtype=np.float64)
+            test_weights = random_weights(self.runner.reward_dim, n, rng=0)
+        policies = "own" if acts_by_own_policies(fixed is not None, sharing) else "shared"
+        env_fn = config.env_fn or env_fn
+        config = dataclasses.replace(config, test_weights=test_weights, policies=policies, env_fn=env_fn)
+        if config.workers > 0 and config.env_fn is None:
+            raise ValueError("an evaluation with workers needs env_fn to build the workers' envs")
+        return config
 
     @classmethod
     def load(cls, run_dir: str | Path, env: ParallelEnv, **kwargs: Any) -> MASFOLS:
@@ -236,15 +192,23 @@ class MASFOLS:
 
         :param run_dir: the run directory (written by a :class:`MASFOLS` with ``run_dir``)
         :param env: the env, built as for the run
-        :param kwargs: arguments that are not stored: ``env_fn``, ``env_kwargs``, ``eval_workers``, ``eval_env_fn``,
-            ``eval_env_kwargs``, ``verbose``
-        :raises ValueError: not a run directory, or a stored setting missing
+        :param kwargs: what is not stored: ``env_fn``, ``verbose``, and ``eval_workers`` (worker processes of the
+            GPI evaluation)
+        :raises ValueError: not a run directory, a stored setting missing, or one of a lever this version removed
         """
         config = {**SETTING_DEFAULTS, **RunDirectory(run_dir).read_config()}
         missing = [key for key in SETTINGS if key not in config]
         if missing:
             raise ValueError(f"{run_dir}/run.json lacks the settings {missing}: not a run of MASFOLS")
-        model = cls(env, **{key: config[key] for key in SETTINGS}, run_dir=run_dir, run_info=config, **kwargs)
+        removed = [key for key, off in REMOVED_SETTINGS.items() if config.get(key, off) != off]
+        if removed:
+            raise ValueError(f"{run_dir} was trained with {removed}, levers this version removed (docs: levers page)")
+        unknown = set(kwargs) - {"env_fn", "verbose", "eval_workers"}
+        if unknown:
+            raise ValueError(f"MASFOLS.load takes env_fn, verbose and eval_workers, not {sorted(unknown)}")
+        workers, verbose = kwargs.pop("eval_workers", 0), kwargs.get("verbose", 0)
+        model = cls(env, run_dir=run_dir, **_arguments(config, workers, verbose), **kwargs)
+        model.run_info = {**config, **model.settings}
         model.callback.resume = True
         return model
 
@@ -286,3 +250,16 @@ class MASFOLS:
         self.callback.close()
         self.runner.close()
         self.runner.env.close()
+
+
+def _arguments(config: Mapping[str, Any], eval_workers: int, verbose: int) -> dict[str, Any]:
+    """The arguments of :class:`MASFOLS` that rebuild a run from its stored settings."""
+    direct = ("policy", "weights", "ols_batch", "steps_per_iteration", "learner_kwargs", "sharing", "n_envs", "seed")
+    admission = Admission(
+        config["validation_weights"], prune=config["prune"], together=config["admit_together"], verbose=verbose
+    )
+    evaluation = EvaluationConfig(
+        config["test_weights"], config["eval_episodes"], gpi_set=config["gpi_set"], workers=eval_workers
+    )
+    values = ValueEstimation(config["value_mode"], config["value_episodes"])
+    return {**{key: config[key] for key in direct}, "values": values, "admission": admission, "evaluation": evaluation}

@@ -9,23 +9,21 @@ callback)`` calls ``callback.on_step()`` after every joint step, and a callback 
 
 from __future__ import annotations
 
-import shutil
 import time
 import warnings
 from collections.abc import Callable, Mapping
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-from stable_baselines3.common.logger import Logger, make_output_format
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.type_aliases import MaybeCallback, TrainFrequencyUnit
 from stable_baselines3.common.vec_env import VecEnv
-from torch import nn
 from tqdm.auto import tqdm
 
+from sb3_sfgpi.common.agent_views import AgentVecEnv, folderless_logger, remove_interrupted_logs
 from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import flattened, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
@@ -34,60 +32,6 @@ from sb3_sfgpi.sfdqn import SFDQN
 
 #: Builds the learner of an agent: ``(agent, per-agent VecEnv, weights, seed) -> SFDQN``.
 LearnerFactory = Callable[[str, VecEnv, np.ndarray, int], SFDQN]
-
-
-class AgentVecEnv(VecEnv):
-    """
-    The agents of one learner, in a shared ParallelEnv, as the VecEnv their SFDQN expects: one slot per agent.
-
-    With independent learners each agent has a view of its own (one slot); with parameter sharing one learner has
-    all the agents as its slots (SB3's ``n_envs``). It is never stepped by the learner: the runner steps the shared
-    env for all agents and hands each learner its transitions. ``reset()`` returns the agents' current
-    observations.
-
-    :param env: the shared env
-    :param agents: the agent's name, or the names of the agents sharing the learner
-    :param n_copies: copies of the env the runner steps (the view has a slot per agent and copy)
-    """
-
-    vector_rewards = True
-    render_mode = None  # the shared env is rendered by the runner's owner, not through a view
-
-    def __init__(self, env: ParallelEnv, agents: str | list[str], n_copies: int = 1):
-        self.agents = [agents] if isinstance(agents, str) else list(agents)
-        first = self.agents[0]
-        super().__init__(n_copies * len(self.agents), env.observation_space(first), env.action_space(first))
-        self.agent = first if len(self.agents) == 1 else f"{first}..{self.agents[-1]}"
-        self.reward_space = env.reward_space(first)  # type: ignore[attr-defined]
-        self.current_obs: np.ndarray | None = None
-
-    def reset(self) -> np.ndarray:
-        assert self.current_obs is not None, "the runner must reset the shared env first"
-        return self.current_obs
-
-    def step_async(self, actions: np.ndarray) -> None:
-        raise RuntimeError(f"{self.agent}'s view cannot be stepped alone: MultiAgentRunner steps the shared env")
-
-    def step_wait(self) -> Any:
-        raise RuntimeError(f"{self.agent}'s view cannot be stepped alone: MultiAgentRunner steps the shared env")
-
-    def close(self) -> None:
-        pass
-
-    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
-        return [getattr(self, attr_name)] * len(list(self._get_indices(indices)))
-
-    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any) -> list[Any]:
-        raise RuntimeError(f"{self.agent}'s view has no env methods")
-
-    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
-        return [False] * len(list(self._get_indices(indices)))
-
-    def get_images(self) -> list[np.ndarray | None]:
-        return [None] * self.num_envs
 
 
 def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
@@ -102,21 +46,6 @@ def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
         return SFDQN(env=view, weights=weights, seed=seed, **kwargs)
 
     return make
-
-
-def folderless_logger(verbose: int) -> Logger:
-    """An SB3 logger writing to stdout (``verbose > 0``) or nowhere, without creating a folder."""
-    return Logger(None, [make_output_format("stdout", "")] if verbose else [])
-
-
-def _remove_interrupted_logs(directory: str, log_name: str) -> None:
-    """
-    Delete the TensorBoard folders (``log_name_N``, SB3's naming) that an interrupted attempt at the same iteration
-    left: the iteration is done again from its start, and its logs replace theirs instead of lying beside them.
-    """
-    for folder in Path(directory).glob(f"{log_name}_*"):
-        if folder.name[len(log_name) + 1 :].isdigit() and folder.is_dir() and not folder.is_symlink():
-            shutil.rmtree(folder)
 
 
 class Transitions(NamedTuple):
@@ -141,12 +70,8 @@ def _replaced(rows: np.ndarray, slots: list[int], values: np.ndarray) -> np.ndar
 
 #: The name of the one learner all agents share (``sharing="shared"``).
 SHARED = "shared"
-#: One learner per agent, each also storing the transitions of the agents that train for its weights
-#: (``sharing="experience"``).
-EXPERIENCE = "experience"
-#: How agents get their learners: one each, one each fed by the agents of its weights, or one for all
-#: (:class:`MultiAgentRunner`'s ``sharing``).
-SHARINGS = ("independent", EXPERIENCE, SHARED)
+#: How agents get their learners: one each, or one for all (:class:`MultiAgentRunner`'s ``sharing``).
+SHARINGS = ("independent", SHARED)
 
 
 class Rows(NamedTuple):
@@ -162,9 +87,8 @@ class Rows(NamedTuple):
 
 class MultiAgentRunner:
     """
-    Learners trained in lockstep on a shared PettingZoo ParallelEnv: one per agent (independent learners), one per
-    agent that the agents training for the same weights feed (experience sharing), or one that every agent acts with
-    and feeds (parameter sharing).
+    Learners trained in lockstep on a shared PettingZoo ParallelEnv: one per agent (independent learners, the
+    paper's), or one that every agent acts with and feeds (parameter sharing).
 
     Agents whose episode ended (terminated or truncated) store no further transitions until the shared
     env is reset, which happens when no agent is left. A time-limit truncation is stored as such
@@ -175,14 +99,6 @@ class MultiAgentRunner:
     learner trains as an SB3 algorithm on ``n_envs`` envs does (``train_freq`` and ``gradient_steps`` per joint
     step, ``learning_starts`` and ``target_update_interval`` in transitions). Learners are named by
     :attr:`learner_names`: the agents' names, or :data:`SHARED`.
-
-    With ``sharing="experience"`` each agent acts with its own learner, for its own weights, and every learner also
-    stores the step's transitions of the other agents whose learners train for the same weights (after its own,
-    once every learner has stepped): homogeneous agents see the same dynamics from their own observations, and an
-    off-policy learner learns its weights from transitions it did not choose. Only from agents acting for the same
-    weights: from a partner that acts otherwise, a learner's SFs count on the objects that partner leaves alone, which
-    at execution, where every agent acts for one weight, it takes (on Four-Room GPI ended lower; README). A learner's
-    schedules still count its own agent's steps.
 
     :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents; composite
         observation spaces (``Tuple``, ``Dict``) are flattened
@@ -195,8 +111,7 @@ class MultiAgentRunner:
     :param verbose: verbosity of the runner-level logger
     :param log_interval: a learner writes its logs (TensorBoard, stdout) every ``log_interval`` of its episodes, as
         in SB3's ``learn(log_interval=...)``, and at the end of its iteration
-    :param sharing: ``"independent"``: one learner per agent; ``"experience"``: one learner per agent, each fed the
-        transitions of every agent training for the same weights; ``"shared"``: one learner for all agents
+    :param sharing: ``"independent"``: one learner per agent; ``"shared"``: one learner for all agents
     :param n_envs: copies of the env to train on, each in its own process (``env_fn``), all stepped at every joint
         step: a learner has a slot per agent and copy (SB3's ``n_envs``). 1: train on ``env`` itself. Evaluations and
         value estimates always run on ``env``
@@ -255,7 +170,6 @@ class MultiAgentRunner:
         self._episode_steps = [0] * n_envs
         self.learners: dict[str, SFDQN] = {}
         self._learner_callbacks: dict[str, BaseCallback] = {}
-        self._peers: dict[str, list[str]] = {}  # learner -> the other learners of its weights (sharing="experience")
         self._gamma = gamma
         self.num_timesteps = 0
         self.iteration = 0
@@ -312,29 +226,22 @@ class MultiAgentRunner:
             learner = self.learner_factory(name, self.views[name], np.full(self.reward_dim, 1 / self.reward_dim), 0)
         except TypeError as error:  # an unknown keyword argument
             raise ValueError(f"bad learner options: {error}") from error
-        if learner.optimize_memory_usage and (learner.n_envs > 1 or self.sharing == EXPERIENCE):
+        if learner.optimize_memory_usage and learner.n_envs > 1:
             raise ValueError(
-                "a learner whose buffer takes several agents' rows (one shared learner, or sharing='experience') needs "
+                "a learner whose buffer takes several agents' rows (one shared learner, or n_envs > 1) needs "
                 "optimize_memory_usage=False"
             )
 
-    def start_iteration(
-        self,
-        weights: dict[str, np.ndarray],
-        iteration: int,
-        total_timesteps: int,
-        init_networks: dict[str, nn.Module] | None = None,
-    ) -> None:
+    def start_iteration(self, weights: dict[str, np.ndarray], iteration: int, total_timesteps: int) -> None:
         """
         Give every learner name a new learner for its weights and reset the shared env.
 
-        Everything an iteration does depends only on ``(seed, iteration, learner name)``, the weights and the
-        initial networks, so a resumed run repeats an interrupted iteration exactly.
+        Everything an iteration does depends only on ``(seed, iteration, learner name)`` and the weights, so a
+        resumed run repeats an interrupted iteration exactly.
 
         :param weights: learner name (:attr:`learner_names`) -> preference weights
         :param iteration: index of the iteration (for seeds and log names)
         :param total_timesteps: joint env steps the iteration will run (for the learners' schedules)
-        :param init_networks: learner name -> SF network to start from (transfer), or None to start fresh
         """
         self.iteration = iteration
         self._close_learners()
@@ -342,25 +249,15 @@ class MultiAgentRunner:
             learner = self.learner_factory(
                 name, self.views[name], weights[name], derive_seed(self.seed, iteration, name)
             )
-            if init_networks and name in init_networks:
-                if learner.optimistic_init:
-                    raise ValueError("transfer (init_networks) and optimistic_init exclude each other: both set ψ")
-                learner.policy.sf_net.load_state_dict(init_networks[name].state_dict())
-                learner.policy.sf_net_target.load_state_dict(init_networks[name].state_dict())
             if learner.train_freq.unit != TrainFrequencyUnit.STEP:  # type: ignore[union-attr]
                 raise ValueError("the multi-agent runner supports train_freq in steps only")
             self.learners[name] = learner
-        trained = {name: learner.weights for name, learner in self.learners.items()}
-        self._peers = {
-            name: [other for other in trained if other != name and np.array_equal(trained[other], w)]
-            for name, w in trained.items()
-        }
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for name, learner in self.learners.items():
             log_name = f"{name}_iter{iteration + 1:03d}"  # iterations are named from 1
             if self.tensorboard_log is not None:
                 learner.tensorboard_log = self.tensorboard_log
-                _remove_interrupted_logs(self.tensorboard_log, log_name)
+                remove_interrupted_logs(self.tensorboard_log, log_name)
             else:  # SB3's own logger would make a folder in the temporary directory for every learner
                 learner.set_logger(folderless_logger(learner.verbose))
             _, callback = learner._setup_learn(
@@ -423,14 +320,11 @@ class MultiAgentRunner:
             self._check_truncations(copy, returned[2], returned[3])
             for values, by_key in zip(returned, merged, strict=True):
                 by_key.update({(copy, agent): value for agent, value in values.items()})
-        keep_going, stored = True, {}
+        keep_going = True
         for name, (live, buffer_action) in sampled.items():
             keys = [self.slots[name][i] for i in live]
             rows, infos = self._stored_rows(name, Transitions(keys, live, buffer_action[live], *merged))
             keep_going &= self._learner_step(name, rows, infos)
-            stored[name] = rows
-        if self.sharing == EXPERIENCE:
-            self._share_experience(stored)
         finished = [copy for copy in range(self.n_envs) if not self._live[copy]]
         if finished:
             self.reset_env(copies=finished)
@@ -464,13 +358,6 @@ class MultiAgentRunner:
         last_obs = learner._last_obs
         learner._last_obs = next_obs if len(step.slots) == learner.n_envs else _replaced(last_obs, step.slots, next_obs)
         return Rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts), infos
-
-    def _share_experience(self, stored: dict[str, Rows]) -> None:
-        """Every learner stores the rows of the other learners that train for its weights (``sharing="experience"``)."""
-        for name, peers in self._peers.items():
-            for other in peers:
-                if other in stored:
-                    self.learners[name].replay_buffer.add_rows(*stored[other])
 
     def _learner_step(self, name: str, rows: Rows, infos: list[dict[str, Any]]) -> bool:
         """

@@ -124,27 +124,13 @@ class OLS:
         self._queue: list[tuple[float, np.ndarray]] = [(math.inf, e) for e in simplex_extrema(self.reward_dim)]
 
     # --- the loop -------------------------------------------------------------------------------------
-    def next_weight(self, pending: Sequence[np.ndarray] = ()) -> np.ndarray | None:
+    def next_weight(self) -> np.ndarray | None:
         """
-        Pop the weight with the highest priority.
+        Pop the weight with the highest priority (Algorithm 1, line 8).
 
-        With ``pending`` weights (handed out already for the same round, their policies not trained yet), the queued
-        weights are ranked by the priority they would have if the pending weights were visited and brought no
-        improvement: a corner next to a pending weight then has little left to gain, and a round of several agents
-        spreads over the simplex instead of training nearly the same weight twice. Infinite priorities (the simplex
-        extrema) stay first.
-
-        :param pending: weights handed out but not solved yet (empty: the highest stored priority, Algorithm 1)
         :return: the weight, or None when the queue is empty
         """
-        if not self._queue:
-            return None
-        index = 0
-        if len(pending) > 0:
-            pending = [validate_weights(w, self.reward_dim, "pending weight") for w in pending]
-            believed = [p if math.isinf(p) else self._priority(u, pending) for p, u in self._queue]
-            index = int(np.argmax(believed))  # the first of equal priorities: the queue's order
-        return self._queue.pop(index)[1].copy()
+        return self._queue.pop(0)[1].copy() if self._queue else None
 
     def add_solution(self, value, weight) -> list[int]:
         """

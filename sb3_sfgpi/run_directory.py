@@ -8,13 +8,12 @@ Layout (no other module spells these names)::
                        vector returns of GPI (discounted and not) and the last infos
     evaluation.csv     per iteration: the summary row
     checkpoint.json    the schedule's state (OLS), next iteration and its weights, number of policies in Π
-    experience/        with ``replan``: the run's pooled experience after the checkpoint's iteration (``NNN.npz``)
     logs/              the runner's SB3 logger (progress.csv, TensorBoard scalars of OLS and GPI)
     tensorboard/       the learners' TensorBoard logs, one folder per agent and iteration
     compare.json       what ``sb3-sfgpi compare`` wrote (by default)
 
 Every file is written atomically. After an iteration, Π is written first (evaluation workers load it), then the
-evaluation files and the experience, and ``checkpoint.json`` last: it is what a resume trusts, so policies and rows
+evaluation files, and ``checkpoint.json`` last: it is what a resume trusts, so policies and rows
 beyond its counts (left by an iteration that was killed) are ignored.
 """
 
@@ -24,7 +23,6 @@ import csv
 import io
 import shutil
 import tempfile
-import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -35,8 +33,6 @@ from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoard
 
 from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json, read_json
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
-from sb3_sfgpi.multiagent import SHARINGS
-from sb3_sfgpi.sfdqn.planning import Experience
 
 #: The columns of ``evaluation.csv``, in order.
 SUMMARY_FIELDS = (
@@ -91,14 +87,17 @@ def _summary_row(row: Any, number: int) -> bool:
     return finite and all(_integer(row.get(k)) for k in counts) and isinstance(row.get("test", []), list)
 
 
+def _string(value: Any) -> bool:
+    return isinstance(value, str)
+
+
 #: What the known settings of ``run.json`` must be (others are kept as they are).
 _SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
-    **dict.fromkeys(("domain", "algorithm", "policy", "gpi_set", "value_mode"), lambda v: isinstance(v, str)),
-    "sharing": lambda v: v in SHARINGS,
+    **dict.fromkeys(("domain", "algorithm", "policy", "gpi_set", "value_mode", "sharing"), _string),
     **dict.fromkeys(("env_kwargs", "learner_kwargs"), lambda v: isinstance(v, dict)),
     **dict.fromkeys(("seed", "iterations", "steps_per_iteration", "n_test_weights", "validation_weights"), _integer),
     **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers", "n_envs"), _integer),
-    **dict.fromkeys(("transfer", "prune", "admit_together", "replan"), lambda v: isinstance(v, bool)),
+    **dict.fromkeys(("prune", "admit_together"), lambda v: isinstance(v, bool)),
     "test_weights": lambda v: _weights(v, 2),
     "weights": lambda v: isinstance(v, str) or _weights(v, 1),
 }
@@ -226,38 +225,6 @@ class RunDirectory:
             policy_set = policy_set.as_of(iteration)
         return policy_set if record else policy_set.members()
 
-    # --- the pooled experience (replan) --------------------------------------------------------------------------
-    def _experience_file(self, iteration: int) -> Path:
-        return self.path / "experience" / f"{iteration:03d}.npz"
-
-    def save_experience(self, experience: Experience, iteration: int) -> None:
-        """Write the run's experience after ``iteration`` iterations (before that iteration's checkpoint)."""
-        out = io.BytesIO()
-        np.savez_compressed(out, **experience.to_arrays())
-        atomic_write_bytes(self._experience_file(iteration), out.getvalue())
-
-    def remove_older_experience(self, iteration: int) -> None:
-        """Delete the experience files of iterations before ``iteration`` (after its checkpoint none is read)."""
-        for path in (self.path / "experience").glob("*.npz"):
-            if path.stem.isdigit() and int(path.stem) < iteration:
-                path.unlink()
-
-    def load_experience(self, iteration: int) -> Experience:
-        """
-        The run's experience after ``iteration`` iterations (the checkpoint's), checked; loading runs no code.
-
-        :raises ValueError: missing, unreadable or malformed
-        """
-        path = self._experience_file(iteration)
-        if not path.is_file():
-            raise ValueError(f"{path} is missing: a run with replan needs the experience of its checkpoint")
-        try:
-            with np.load(path, allow_pickle=False) as arrays:
-                return Experience.from_arrays({name: arrays[name] for name in arrays.files}, str(path))
-        except (OSError, ValueError, zipfile.BadZipFile) as error:
-            raise ValueError(f"{path} is not a readable experience file: {error}") from error
-
-    # --- iterations -------------------------------------------------------------------------------------------
     def write_iteration(self, history: Sequence[dict[str, Any]], checkpoint: dict[str, Any]) -> None:
         """The evaluation files of every iteration so far, then ``checkpoint.json`` (last: a resume trusts it)."""
         atomic_write_json(self.path / self.EVALUATION_JSON, list(history))

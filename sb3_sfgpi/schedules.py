@@ -5,9 +5,8 @@ rule that a policy joins Π only when its value is new, and the CCS reported aft
 for all of them. They differ in the weights they hand out:
 
 * :class:`OLSSchedule` (MA-SFOLS): the corner weights of highest optimistic priority, simplex extrema first, one
-  per agent (``batch="top"``, Algorithm 1), or each agent's chosen given the weights handed out before it in the
-  round (``batch="spread"``); Dirichlet(1) random weights for the agents beyond the queue; or the one corner weight
-  of highest priority for every agent (``batch="same"``), or so once the simplex extrema are handed out
+  per agent (``batch="top"``, Algorithm 1), with Dirichlet(1) random weights for the agents beyond the queue; or,
+  once the simplex extrema are handed out, the one corner weight of highest priority for every agent
   (``batch="same-after-extrema"``); None (stop) when the queue is empty.
 * :class:`RandomSchedule` (Random + GPI): Dirichlet(1) random weights for every agent, never stops by itself.
 * :class:`FixedSchedule` (a priori scalarised learners): the same weights for every agent in every iteration;
@@ -32,7 +31,7 @@ from sb3_sfgpi.ols import OLS
 #: agent -> the weights it trains for in the next iteration
 AgentWeights = dict[str, np.ndarray]
 #: the ways :class:`OLSSchedule` takes a round's weights from the queue
-OLS_BATCHES = ("top", "spread", "same", "same-after-extrema")
+OLS_BATCHES = ("top", "same-after-extrema")
 #: settings that checkpoints written before they existed lack, with the value those checkpoints were written with
 _SETTINGS_BEFORE_THEY_EXISTED = {"batch": "top"}
 
@@ -122,12 +121,10 @@ class OLSSchedule(WeightSchedule):
     MA-SFOLS: corner weights by OLS priority, one per agent; random weights for the agents beyond the queue.
 
     :param batch: how a round's weights are taken from the queue: ``"top"``, the highest stored priorities
-        (Algorithm 1); ``"spread"``, each agent's weight of highest priority given that the weights handed out
-        before it in the round bring no improvement (:meth:`~sb3_sfgpi.ols.OLS.next_weight` with ``pending``), so
-        that two agents do not train for nearly the same corner weight; ``"same"``, every agent the weight of highest
-        priority, so that a round's policies are learned beside partners acting for their weight, as all agents act
-        for one weight at execution; ``"same-after-extrema"``, ``"top"`` while a simplex extremum heads the queue
-        (the first rounds cover the simplex as Algorithm 1's do), ``"same"`` after
+        (Algorithm 1); ``"same-after-extrema"``, ``"top"`` while a simplex extremum heads the queue (the first
+        rounds cover the simplex as Algorithm 1's do), after that the weight of highest priority for every agent, so
+        that a round's policies are learned beside partners acting for their weight, as all agents act for one
+        weight at execution
     :param tolerance: see :class:`WeightSchedule`
     """
 
@@ -143,12 +140,12 @@ class OLSSchedule(WeightSchedule):
         queue = self.ols.queue
         if not queue:
             return None
-        if self.batch == "same" or (self.batch == "same-after-extrema" and not math.isinf(queue[0][0])):
+        if self.batch == "same-after-extrema" and not math.isinf(queue[0][0]):
             first = self.ols.next_weight()
             return {agent: first.copy() for agent in agents}
         weights = {agents[0]: self.ols.next_weight()}
         for agent in agents[1:]:
-            w = self.ols.next_weight(list(weights.values()) if self.batch == "spread" else ())
+            w = self.ols.next_weight()
             weights[agent] = random_weights(self.ols.reward_dim, rng=rng) if w is None else w
         return weights
 

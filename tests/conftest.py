@@ -33,7 +33,7 @@ FIG1_TABULAR_KWARGS: dict[str, Any] = dict(
 FIG1_TABULAR_STEPS = 1_200
 #: `train` options for tests of training mechanics on the four-room preset: validating untrained policies on the
 #: preset's 100 validation weights would take minutes
-FEW_VALIDATION = ["--validation-weights", "4"]
+FEW_VALIDATION = ["--set", "validation_weights=4"]
 
 BAD_WEIGHTS = [
     pytest.param([1.0], "length", id="wrong-length"),

@@ -9,8 +9,9 @@ import pytest
 from parallel_chain import make_chain_runner, optimal_value
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback
+from sb3_sfgpi.callbacks import OLSCallback
 from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.schedules import OLSSchedule, RandomSchedule, WeightSchedule, make_schedule
 

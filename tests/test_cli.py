@@ -37,6 +37,25 @@ def test_train_writes_a_run_directory(run_dir):
     assert rows[0].startswith("iteration,timesteps,n_policies,ccs_size,mean_return") and len(rows) == 3
     assert (run_dir / "policy_set" / "manifest.json").exists()
     assert any((run_dir / "tensorboard").iterdir()) and (run_dir / "logs" / "progress.csv").exists()
+    preset = DomainPreset.from_dict("four-room", four_room())
+    assert config["validation_weights"] == 4 and config["prune"] is preset.prune  # --set over the preset's
+    for key in ("gpi_set", "value_episodes", "eval_episodes", "ols_batch", "value_mode", "admit_together"):
+        assert config[key] == getattr(preset, key), key
+    for removed in ("transfer", "gpi_behaviour", "replan"):
+        assert removed not in config
+
+
+def test_train_prints_a_header_first_and_no_progress_bars_off_a_terminal(tmp_path, capsys):
+    out = tmp_path / "header"
+    train = [arg for arg in TRAIN if arg != "--no-progress"]  # progress bars asked for, but not on a terminal
+    assert main([*train, *FEW_VALIDATION, "--iterations", "1", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    header = captured.out.splitlines()[0]
+    assert header.startswith("sb3-sfgpi train four-room: ma-sfols, seed 1, up to 1 x 150 steps, objectives: ")
+    assert header.endswith(f"-> {out}")
+    objectives = DomainPreset.from_dict("four-room", four_room()).objective_names({})
+    assert objectives and ", ".join(objectives) in header
+    assert "it/s" not in captured.err and "step/s" not in captured.err  # no tqdm bar: stderr is not a terminal
 
 
 def test_resume_continues_to_more_iterations(run_dir, tmp_path):
@@ -45,25 +64,17 @@ def test_resume_continues_to_more_iterations(run_dir, tmp_path):
     args = [*TRAIN, *FEW_VALIDATION, "--algo", "random", "--out", str(out)]  # random weights never end before the cap
     assert main(args) == 0
     args[args.index("--iterations") + 1] = "3"
-    assert main([*args, "--resume", "--value-mode", "gpi"]) == 2  # would change the run
-    assert main([*args, "--resume"]) == 0
+    assert main([*args, "--resume", "--set", "value_mode=shared"]) == 2  # would change the run
+    assert main([*args, "--resume", "--set", "validation_weights=4", "--set", "eval_workers=0"]) == 0  # would not
     assert json.loads((out / "checkpoint.json").read_text())["iteration"] == 3
     assert len((out / "evaluation.csv").read_text().splitlines()) == 4
 
 
-def test_replan_is_the_domains_unless_given(run_dir, tmp_path):
-    assert json.loads((run_dir / "run.json").read_text())["replan"] is four_room().get("replan", False)
-    out = tmp_path / "replan"
-    assert main([*TRAIN, *FEW_VALIDATION, "--iterations", "1", "--no-replan", "--out", str(out)]) == 0
-    assert json.loads((out / "run.json").read_text())["replan"] is False and not (out / "experience").exists()
-    assert main([*TRAIN, *FEW_VALIDATION, "--iterations", "2", "--replan", "--resume", "--out", str(out)]) == 2
-
-
 def test_value_mode_is_the_domains_unless_given(run_dir, tmp_path):
     assert json.loads((run_dir / "run.json").read_text())["value_mode"] == "joint"
-    out = tmp_path / "gpi"
-    assert main([*TRAIN, "--iterations", "1", "--value-mode", "gpi", "--out", str(out)]) == 0
-    assert json.loads((out / "run.json").read_text())["value_mode"] == "gpi"
+    out = tmp_path / "shared-values"
+    assert main([*TRAIN, *FEW_VALIDATION, "--iterations", "1", "--set", "value_mode=shared", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["value_mode"] == "shared"
 
 
 def test_refused_settings_leave_no_run_directory(tmp_path, capsys):
@@ -134,7 +145,21 @@ def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys)
         (["evaluate", "RUN", "--random-weights", "0"], "--random-weights must be positive, got 0"),
         (["evaluate", "RUN", "--random-weights", "2", "--members"], "--members needs --w"),
         (["train", "no-such-domain"], "unknown domain"),
-        (["train", "four-room", "--replan", "--learner", "policy=MlpPolicy", "--out", "NOT_A_RUN"], "plans tables"),
+        (["train", "four-room", "--set", "bogus=1", "--out", "NOT_A_RUN"], "--set bogus: unknown setting"),
+        (["train", "four-room", "--set", "prune", "--out", "NOT_A_RUN"], "--set expects KEY=VALUE"),
+        (["train", "four-room", "--set", "value_mode=gpi", "--out", "NOT_A_RUN"], "--set value_mode must be one of"),
+        (["train", "four-room", "--set", "ols_batch=spread", "--out", "NOT_A_RUN"], "--set ols_batch must be one of"),
+        (["train", "four-room", "--set", "sharing=experience", "--out", "NOT_A_RUN"], "--set sharing must be one of"),
+        (["train", "four-room", "--set", "prune=yes", "--out", "NOT_A_RUN"], "--set prune must be true or false"),
+        (["train", "four-room", "--set", "n_envs=0", "--out", "NOT_A_RUN"], "--set n_envs must be an integer >= 1"),
+        (
+            ["train", "four-room", "--set", "validation_weights=0", "--set", "prune=true", "--out", "NOT_A_RUN"],
+            "--set prune=true needs validation weights",
+        ),
+        (
+            ["train", "four-room", "--algo", "random", "--set", "ols_batch=top", "--out", "NOT_A_RUN"],
+            "--set ols_batch is only for --algo ma-sfols",
+        ),
         (["plot", "NOT_A_RUN", "-o", "x.png"], "not a run directory"),
     ],
 )
@@ -144,6 +169,17 @@ def test_bad_arguments_give_one_line_and_exit_code_2(run_dir, tmp_path, argv, me
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    "option", [["--transfer"], ["--gpi-behaviour"], ["--replan"], ["--torch-threads", "2"], ["--prune"]]
+)
+def test_removed_train_options_are_unknown(tmp_path, capsys, option):
+    out = tmp_path / "removed"
+    with pytest.raises(SystemExit) as exit_info:
+        main([*TRAIN, *option, "--out", str(out)])
+    assert exit_info.value.code == 2 and f"unrecognized arguments: {option[0]}" in capsys.readouterr().err
+    assert not out.exists()
 
 
 def test_plot_draws_a_png(run_dir, tmp_path):
@@ -156,14 +192,14 @@ def test_sharing_is_the_domains_unless_given(run_dir, tmp_path):
     assert json.loads((run_dir / "run.json").read_text())["sharing"] == four_room()["sharing"] == "independent"
     assert {info.agent for info in GPIPolicy.load(run_dir / "policy_set").infos} <= {"agent_0", "agent_1"}
     out = tmp_path / "shared"
-    assert main([*TRAIN, *FEW_VALIDATION, "--iterations", "1", "--sharing", "shared", "--out", str(out)]) == 0
+    assert main([*TRAIN, *FEW_VALIDATION, "--iterations", "1", "--set", "sharing=shared", "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["sharing"] == "shared"
     assert [info.agent for info in GPIPolicy.load(out / "policy_set").infos] == ["shared"]  # one learner for both
 
 
 def test_compare_evaluates_a_fixed_run_of_one_shared_learner_by_its_policies(run_dir, tmp_path):
     fixed = tmp_path / "fixed-shared"
-    train = [*TRAIN, "--algo", "fixed", "--w", "0.2", "0.3", "0.5", "--iterations", "1", "--sharing", "shared"]
+    train = [*TRAIN, "--algo", "fixed", "--w", "0.2", "0.3", "0.5", "--iterations", "1", "--set", "sharing=shared"]
     assert main([*train, "--out", str(fixed)]) == 0
     out = tmp_path / "compare.json"
     compare = ["compare", str(run_dir), "--fixed", str(fixed), "--episodes", "1", "--workers", "0", "--no-baselines"]
@@ -173,10 +209,8 @@ def test_compare_evaluates_a_fixed_run_of_one_shared_learner_by_its_policies(run
 
 
 def test_a_preset_with_an_unknown_sharing_is_refused():
-    with pytest.raises(
-        UsageError, match="sharing must be one of .*'independent', 'experience', 'shared'.*, got 'pooled'"
-    ):
-        DomainPreset.from_dict("four-room", {**four_room(), "sharing": "pooled"})
+    with pytest.raises(UsageError, match="sharing must be one of .*'independent', 'shared'.*, got 'experience'"):
+        DomainPreset.from_dict("four-room", {**four_room(), "sharing": "experience"})
 
 
 def test_plot_mean_over_seeds_forward_fills_runs_that_ended_early():

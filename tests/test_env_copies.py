@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 from momdp import REWARDS, TERMINAL
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 
-from sb3_sfgpi import MASFOLS
+from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.env_copies import EnvCopies
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
@@ -53,8 +54,9 @@ def test_every_copy_feeds_every_learner_a_slot_per_agent():
 def test_ma_sfols_on_two_copies_finds_the_exact_ccs_and_continues_exactly(tmp_path):
     def make(run_dir):
         return MASFOLS(
-            ParallelChainEnv(2), steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS, test_weights=3, seed=2,
-            n_envs=2, env_fn=ParallelChainEnv, env_kwargs={"n_agents": 2}, run_dir=run_dir,
+            ParallelChainEnv(2), steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS,
+            evaluation=EvaluationConfig(3), seed=2, n_envs=2, env_fn=functools.partial(ParallelChainEnv, n_agents=2),
+            run_dir=run_dir,
         )  # fmt: skip
 
     whole = make(tmp_path / "whole").learn(max_iterations=10)
@@ -66,7 +68,9 @@ def test_ma_sfols_on_two_copies_finds_the_exact_ccs_and_continues_exactly(tmp_pa
     cut = make(tmp_path / "cut")
     cut.learn(max_iterations=1)
     cut.close()
-    continued = MASFOLS.load(tmp_path / "cut", ParallelChainEnv(2), env_fn=ParallelChainEnv, env_kwargs={"n_agents": 2})
+    continued = MASFOLS.load(
+        tmp_path / "cut", ParallelChainEnv(2), env_fn=functools.partial(ParallelChainEnv, n_agents=2)
+    )
     continued.learn(max_iterations=10)
     continued.close()
     assert [r["mean_return"] for r in continued.history] == [r["mean_return"] for r in whole.history]
@@ -92,10 +96,10 @@ def test_a_broken_copy_stops_training_with_its_error_and_bad_options_are_refused
 def test_cli_trains_on_copies_and_refuses_to_change_their_number_on_resume(tmp_path):
     out = tmp_path / "fr"
     train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--no-progress"]
-    assert main([*train, "--n-envs", "2", "--out", str(out)]) == 0
+    assert main([*train, "--set", "n_envs=2", "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["n_envs"] == 2
     assert json.loads((out / "checkpoint.json").read_text())["timesteps"] == 100  # joint steps, as with one env
     train[train.index("--iterations") + 1] = "2"
-    assert main([*train, "--n-envs", "1", "--out", str(out), "--resume"]) == 2
+    assert main([*train, "--set", "n_envs=1", "--out", str(out), "--resume"]) == 2
     assert main([*train, "--out", str(out), "--resume"]) == 0
-    assert main([*train, "--n-envs", "0", "--out", str(tmp_path / "bad")]) == 2
+    assert main([*train, "--set", "n_envs=0", "--out", str(tmp_path / "bad")]) == 2

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 from sfgpi_envs.domains import four_room
 
-from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback
+from sb3_sfgpi.callbacks import OLSCallback
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
 from sb3_sfgpi.schedules import OLSSchedule
 

@@ -37,7 +37,7 @@ JSON = st.recursive(
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fuzz") / "run"
-    argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--n-test-weights", "2"]
+    argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--set", "n_test_weights=2"]
     assert main([*argv, "--no-progress", "--out", str(out)]) == 0
     return out
 
@@ -132,8 +132,16 @@ def test_evaluate_arguments_work_or_give_one_line(run_dir, capsys, w, episodes, 
 
 OPTION_VALUE = st.sampled_from(["0", "1", "-1", "0.5", "abc", "", "1e400", "nan", "true", "[1]"])
 TRAIN_OPTION = st.one_of(
-    st.tuples(st.sampled_from(["--iterations", "--steps-per-iteration", "--n-test-weights", "--seed"]), OPTION_VALUE),
-    st.tuples(st.sampled_from(["--validation-weights", "--workers", "--algo", "--w", "--policy"]), OPTION_VALUE),
+    st.tuples(st.sampled_from(["--iterations", "--steps-per-iteration", "--seed"]), OPTION_VALUE),
+    st.tuples(st.sampled_from(["--workers", "--algo", "--w", "--policy"]), OPTION_VALUE),
+    st.tuples(
+        st.just("--set"),
+        st.builds(
+            "{}={}".format,
+            st.sampled_from(["n_test_weights", "validation_weights", "prune", "ols_batch", "sharing", "nosuch", ""]),
+            OPTION_VALUE,
+        ),
+    ),
     st.tuples(
         st.sampled_from(["--env", "--learner"]),
         st.builds(
@@ -148,7 +156,7 @@ TRAIN_OPTION = st.one_of(
 @FUZZ
 @given(options=st.lists(TRAIN_OPTION, max_size=4))
 def test_train_arguments_work_or_give_one_line(tmp_path, capsys, options):
-    argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "60", "--n-test-weights", "1"]
+    argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "60", "--set", "n_test_weights=1"]
     argv += [part for option in options for part in option]  # later options override the small defaults
     out = tmp_path / "run"
     shutil.rmtree(out, ignore_errors=True)

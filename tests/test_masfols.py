@@ -11,9 +11,12 @@ from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 from stable_baselines3.common.logger import TensorBoardOutputFormat
 from tensorboard_scalars import scalar_steps
 
+from sb3_sfgpi.admission import Admission
+from sb3_sfgpi.callbacks import ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.masfols import MASFOLS, SETTING_DEFAULTS, SETTINGS
+from sb3_sfgpi.masfols import MASFOLS, REMOVED_SETTINGS, SETTING_DEFAULTS, SETTINGS
 
 #: The chain's tabular learner settings, without the policy (MASFOLS takes it apart).
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
@@ -21,8 +24,11 @@ TEST_WEIGHTS = random_weights(2, 5, rng=0)
 OBS = np.arange(5)
 
 
-def make(steps: int = 300, n_agents: int = 2, **kwargs) -> MASFOLS:
-    kwargs = {"test_weights": TEST_WEIGHTS, **kwargs}
+def make(steps: int = 300, n_agents: int = 2, test_weights=TEST_WEIGHTS, admission=None, **kwargs) -> MASFOLS:
+    """MASFOLS on the chain, evaluated on ``test_weights``; ``admission``: the :class:`Admission`'s arguments."""
+    kwargs = {"evaluation": EvaluationConfig(test_weights), **kwargs}
+    if admission is not None:
+        kwargs["admission"] = Admission(**admission)  # a fresh one per model
     return MASFOLS(
         ParallelChainEnv(n_agents),
         policy="TabularPolicy",
@@ -76,67 +82,9 @@ def test_ols_finds_the_optimum_and_stops_before_the_cap():
             assert np.dot(entry["weights"], returns["undiscounted"]) == pytest.approx(optimal_value(entry["weights"]))
 
 
-def optimal_for_their_weights(policy_set: GPIPolicy) -> list[bool]:
-    """Whether each policy's own ``max_a w · ψ(s0, a)`` is the optimal value of its weights."""
-    return [
-        policy_set.subset([i]).q_values(OBS[:1], info.weights).max() == pytest.approx(optimal_value(info.weights))
-        for i, info in enumerate(policy_set.infos)
-    ]
-
-
-def test_replan_plans_every_policy_on_all_the_runs_transitions_for_its_own_weights():
-    short = dict(steps=15, weights="random", seed=0)  # learners too short to learn their weights
-    replanned = make(**short, replan=True).learn(max_iterations=4)
-    experience = replanned.callback.experience
-    assert len(experience) == 4 * 15 * 2  # every transition of both agents, every iteration
-    assert len(experience.model().entries) == TERMINAL * 3  # every (state, action) pair recorded
-    assert all(optimal_for_their_weights(replanned.callback.record.members()))
-    assert not all(optimal_for_their_weights(make(**short).learn(max_iterations=4).callback.record.members()))
-
-
-def test_replan_is_refused_without_tables():
-    with pytest.raises(ValueError, match="replan plans tables: it needs policy='TabularPolicy', not 'MlpPolicy'"):
-        MASFOLS(ParallelChainEnv(2), policy="MlpPolicy", replan=True)
-
-
-def test_gpi_values_are_gpis_return_over_the_set_and_the_new_policies_at_each_learners_weights():
-    model = make(steps=40, value_mode="gpi").learn(max_iterations=2)
-    record = model.callback.record
-    candidates = record.subset(i for i, info in enumerate(record.infos) if info.iteration == 1)
-    for name in model.runner.learner_names:
-        candidates.add(model.runner.learners[name], agent=name)
-    second = [info for info in record.infos if info.iteration == 2]
-    assert second  # the second iteration's learners (not optimal yet: GPI over the set does better than they do)
-    weights = model.history[1]["weights_trained"]
-    for info in second:
-        np.testing.assert_array_equal(info.value, chain_return(candidates, weights[info.agent]))
-    joint = make(steps=40).learn(max_iterations=2).callback.record
-    assert any(not np.array_equal(a.value, b.value) for a, b in zip(joint.infos[2:], second, strict=False))
-
-
-def test_gpi_values_are_refused_with_gpi_over_the_ccs():
-    with pytest.raises(ValueError, match="value mode 'gpi'.*gpi_set='ccs'"):
-        make(value_mode="gpi", gpi_set="ccs")
-
-
-def test_gpi_behaviour_gives_the_learners_the_set_gpi_acts_over():
-    model = make(steps=40, gpi_behaviour=True).learn(max_iterations=1)
-    assert all(learner.behaviour_set is None for learner in model.runner.learners.values())  # Π was empty
-    model.learn(max_iterations=2)
-    assert all(learner.behaviour_set is model.callback.policy_set for learner in model.runner.learners.values())
-    alone = make(steps=40).learn(max_iterations=2)
-    assert model.history[0]["mean_return"] == alone.history[0]["mean_return"]
-    assert model.history[1]["weights_trained"] == alone.history[1]["weights_trained"]
-    learners = model.runner.learners.values(), alone.runner.learners.values()
-    assert any(
-        not np.array_equal(a.successor_features(OBS), b.successor_features(OBS)) for a, b in zip(*learners, strict=True)
-    )  # the same weights, another behaviour: other data, other tables
-    with pytest.raises(ValueError, match="GPI behaviour acts over the shared Π"):
-        make(weights=[0.5, 0.5], gpi_behaviour=True)
-
-
 def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
-    model = make(steps=50, weights="random", seed=4, run_dir=tmp_path, run_info={"domain": "chain"})
+    model = make(steps=50, weights="random", seed=4, run_dir=tmp_path)
+    model.run_info["domain"] = "chain"  # plain data of the caller's, written to run.json by learn()
     model.learn(max_iterations=2)
     config = json.loads((tmp_path / "run.json").read_text())
     assert set(SETTINGS) <= set(config) and config["domain"] == "chain"
@@ -145,6 +93,10 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     assert config["steps_per_iteration"] == 50 and config["seed"] == 4
     assert config["learner_kwargs"] == LEARNER_KWARGS
     np.testing.assert_allclose(config["test_weights"], TEST_WEIGHTS)
+    assert (config["value_mode"], config["value_episodes"]) == ("joint", 1)
+    assert (config["gpi_set"], config["eval_episodes"]) == ("all", 1)
+    assert (config["validation_weights"], config["prune"], config["admit_together"]) == (0, False, False)
+    assert not set(REMOVED_SETTINGS) & set(config)  # the removed levers are not written
     checkpoint = json.loads((tmp_path / "checkpoint.json").read_text())
     assert (checkpoint["iteration"], checkpoint["timesteps"]) == (2, 100)
     assert checkpoint["n_policies"] == len(model.policy_set)
@@ -158,11 +110,10 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     [
         {"weights": "ols"},
         {"weights": "random"},
-        {"weights": "random", "validation_weights": 3},
-        {"weights": "random", "validation_weights": 3, "prune": True, "admit_together": True},
+        {"weights": "random", "admission": {"validation_weights": 3}},
+        {"weights": "random", "admission": {"validation_weights": 3, "prune": True, "together": True}},
         {"weights": "random", "sharing": "shared"},
-        {"weights": "ols", "gpi_behaviour": True},
-        {"weights": "random", "replan": True, "validation_weights": 3, "prune": True},
+        {"weights": "ols", "values": ValueEstimation("shared", 2), "ols_batch": "same-after-extrema"},
     ],
 )
 def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):
@@ -182,33 +133,11 @@ def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):
     assert json.loads((tmp_path / "cut" / "checkpoint.json").read_text())["iteration"] == len(whole.history)
 
 
-def test_replan_resumes_exactly_where_the_policy_files_are_from_an_iteration_past_the_checkpoint(tmp_path):
-    kwargs = dict(steps=15, seed=1, weights="random", replan=True, gpi_behaviour=True)  # Π acts while learning
-    whole = make(**kwargs, run_dir=tmp_path / "whole").learn(max_iterations=3)
-    cut = tmp_path / "cut"
-    make(**kwargs, run_dir=cut).learn(max_iterations=1)
-    kept = {path: path.read_bytes() for path in [*cut.glob("*.json"), *cut.glob("*.csv"), *cut.glob("experience/*")]}
-    policies_then = GPIPolicy.load(cut / "policy_set").successor_features(OBS)
-    MASFOLS.load(cut, ParallelChainEnv(2)).learn(max_iterations=2)
-    for path, data in kept.items():  # killed after writing Π, before the checkpoint of iteration 2
-        path.write_bytes(data)
-    policies_later = GPIPolicy.load(cut / "policy_set").subset(range(len(policies_then)))
-    assert not np.allclose(policies_later.successor_features(OBS), policies_then)  # planned on more transitions
-
-    continued = MASFOLS.load(cut, ParallelChainEnv(2)).learn(max_iterations=1)  # restores, trains nothing
-    np.testing.assert_array_equal(continued.policy_set.successor_features(OBS), policies_then)
-    continued.learn(max_iterations=3)
-    assert [r["mean_return"] for r in continued.history] == [r["mean_return"] for r in whole.history]
-    assert_same_policy_sets(continued.policy_set, whole.policy_set)
-    assert sorted(path.name for path in (cut / "experience").iterdir()) == ["003.npz"]
-
-
 @pytest.mark.parametrize(
     ("setting", "kwargs"),
     [
         ("validation_weights", {}),
-        ("admit_together", {"validation_weights": 2, "admit_together": True}),
-        ("replan", {}),
+        ("admit_together", {"admission": {"validation_weights": 2, "together": True}}),
     ],
 )
 def test_a_run_written_before_a_setting_existed_continues_without_it(tmp_path, setting, kwargs):
@@ -218,9 +147,27 @@ def test_a_run_written_before_a_setting_existed_continues_without_it(tmp_path, s
     (tmp_path / "run.json").write_text(json.dumps(config))
     continued = MASFOLS.load(tmp_path, ParallelChainEnv(2))
     assert continued.settings[setting] == SETTING_DEFAULTS[setting]
-    validation = continued.callback.validation
-    assert (validation.n_weights, validation.together) == (kwargs.get("validation_weights", 0), False)
+    admission = continued.callback.admission
+    stored_weights = kwargs.get("admission", {}).get("validation_weights", 0)
+    assert (admission.validation_weights, admission.together) == (stored_weights, False)
     assert len(continued.learn(max_iterations=2).history) == 2
+
+
+@pytest.mark.parametrize("lever", sorted(REMOVED_SETTINGS))
+def test_load_refuses_a_run_of_a_removed_lever_and_continues_one_with_it_off(tmp_path, lever):
+    make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=1)
+    config = json.loads((tmp_path / "run.json").read_text())
+    (tmp_path / "run.json").write_text(json.dumps({**config, lever: True}))  # written by an older version
+    with pytest.raises(ValueError, match=f"was trained with \\['{lever}'\\], levers this version removed"):
+        MASFOLS.load(tmp_path, ParallelChainEnv(2))
+    (tmp_path / "run.json").write_text(json.dumps({**config, lever: False}))  # off: the run is one of today's
+    assert len(MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=2).history) == 2
+
+
+def test_load_refuses_arguments_that_are_stored_in_the_run(tmp_path):
+    make(steps=20, weights="random", run_dir=tmp_path).learn(max_iterations=1)
+    with pytest.raises(ValueError, match="MASFOLS.load takes env_fn, verbose and eval_workers, not \\['seed'\\]"):
+        MASFOLS.load(tmp_path, ParallelChainEnv(2), seed=1)
 
 
 def test_fixed_weights_evaluate_each_agent_on_its_own_policies_and_keep_every_policy():

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from parallel_chain import make_chain_runner
 
-from sb3_sfgpi.callbacks import EvaluationConfig, OLSCallback
+from sb3_sfgpi.callbacks import OLSCallback
 from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.multiagent import AgentVecEnv
 from sb3_sfgpi.schedules import OLSSchedule
 

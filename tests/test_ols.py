@@ -283,7 +283,7 @@ def test_priorities_are_optimistic_and_non_negative(policy_values, steps, seed):
 
 # Three policies, solved exactly at the three extrema: the queue then holds four corner weights, the first two
 # next to each other (max-norm distance 0.29) and 2.9 and 2.6 to gain, the third farther away with 1.4.
-SPREAD_POLICIES = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])
+NEIGHBOUR_POLICIES = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])
 
 
 def ols_after_the_extrema(policy_values: np.ndarray) -> OLS:
@@ -294,43 +294,15 @@ def ols_after_the_extrema(policy_values: np.ndarray) -> OLS:
     return ols
 
 
-def test_pending_weights_spread_a_round_over_the_simplex():
-    """Top-2 hands out the two neighbouring corners; with the first pending, the second corner has only 0.2 left to
-    gain (the first may already cover it) and the farther corner, with its 1.4, comes second."""
-    top, spread = ols_after_the_extrema(SPREAD_POLICIES), ols_after_the_extrema(SPREAD_POLICIES)
-    assert [round(p, 4) for p, _ in top.queue] == [2.9167, 2.6471, 1.4286, 1.0]
-    first = top.next_weight()
-    np.testing.assert_allclose(first, [5 / 12, 7 / 12, 0])
-    np.testing.assert_allclose(top.next_weight(), [5 / 17, 7 / 17, 5 / 17])
-    np.testing.assert_array_equal(spread.next_weight(), first)
-    np.testing.assert_allclose(spread.next_weight([first]), [0, 2 / 7, 5 / 7])
-    assert_same_points([w for _, w in spread.queue], [[5 / 17, 7 / 17, 5 / 17], [0.5, 0, 0.5]])
-
-
-@PROPERTY_SETTINGS
-@given(policy_values=value_sets(max_dim=4, max_values=8), steps=st.integers(0, 6), n_pending=st.integers(1, 3))
-def test_a_weight_popped_with_pending_weights_is_the_best_once_they_are_solved_without_improvement(
-    policy_values, steps, n_pending
-):
-    """``next_weight(pending)`` is the queued weight of highest priority in an OLS where every pending weight was
-    visited and its solution brought no new value."""
-    ols = OLS(policy_values.shape[1], tolerance=TOL)
-    for _ in range(steps):
-        w = ols.next_weight()
-        if w is None:
-            return
-        ols.add_solution(solve_exactly(policy_values, w), w)
-    pending = [w for w in (ols.next_weight() for _ in range(n_pending)) if w is not None]
-    if not pending or not ols.queue or not ols.values:  # before any value, every queued priority is infinite
-        return
-    believed = OLS.from_state_dict(ols.state_dict())
-    for w in pending:
-        believed.add_solution(solve_exactly(np.array(believed.values), w), w)  # no improvement at w
-    queue = ols.queue
-    priorities = [p if math.isinf(p) else believed.priority(u) for p, u in queue]
-    popped = ols.next_weight(pending)
-    best = [u for p, (_, u) in zip(priorities, queue, strict=True) if p == pytest.approx(max(priorities))]
-    assert any(np.array_equal(popped, u) for u in best)
+def test_next_weight_pops_the_corner_weights_by_priority():
+    """After the extrema, the queue holds the four corner weights by priority, and ``next_weight`` pops them in that
+    order (the two neighbouring corners first: ``batch="top"`` hands them to a round's two agents)."""
+    ols = ols_after_the_extrema(NEIGHBOUR_POLICIES)
+    assert [round(p, 4) for p, _ in ols.queue] == [2.9167, 2.6471, 1.4286, 1.0]
+    np.testing.assert_allclose(ols.next_weight(), [5 / 12, 7 / 12, 0])
+    np.testing.assert_allclose(ols.next_weight(), [5 / 17, 7 / 17, 5 / 17])
+    assert [round(p, 4) for p, _ in ols.queue] == [1.4286, 1.0]
+    assert_same_points([w for _, w in ols.queue], [[0, 2 / 7, 5 / 7], [0.5, 0, 0.5]])
 
 
 def test_priority_is_infinite_until_every_extremum_is_visited():

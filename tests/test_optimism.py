@@ -131,12 +131,3 @@ def test_the_multi_agent_runner_settles_every_learner_at_the_end_of_an_iteration
     runner.end_iteration()
     for learner in runner.learners.values():
         assert learner.policy.sf_net.table.weight.detach().numpy().max() < 100.0
-
-
-def test_the_multi_agent_runner_refuses_transfer_with_optimism():
-    runner = chain_runner(optimistic_init=100.0)
-    weights = {agent: np.array([0.5, 0.5]) for agent in runner.agents}
-    runner.start_iteration(weights, iteration=0, total_timesteps=5)
-    networks = {agent: learner.policy.sf_net for agent, learner in runner.learners.items()}
-    with pytest.raises(ValueError, match="transfer .* and optimistic_init exclude each other"):
-        runner.start_iteration(weights, iteration=1, total_timesteps=5, init_networks=networks)

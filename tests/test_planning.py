@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from momdp import N_STATES, REWARDS, TERMINAL, Fig1MOMDP, all_observations, optimal_value, successor_features
 
 from sb3_sfgpi.sfdqn import SFDQN
-from sb3_sfgpi.sfdqn.planning import TOLERANCE, EmpiricalModel, Experience, plan_afresh
+from sb3_sfgpi.sfdqn.planning import TOLERANCE, Experience
 
 
 def test_a_stochastic_model_is_backed_up_with_its_empirical_probabilities():
@@ -131,77 +131,3 @@ def test_stored_arrays_are_the_recorded_transitions():
     np.testing.assert_array_equal(next_obs.reshape(-1), obs.reshape(-1) + 1)
     np.testing.assert_array_equal(dones, next_obs.reshape(-1) == N_STATES - 1)
     np.testing.assert_array_equal(rewards, REWARDS[obs.reshape(-1), actions])
-
-
-def random_transitions(rng: np.random.Generator, n: int, n_states: int = 4, n_actions: int = 2) -> tuple:
-    rows, actions = rng.integers(0, n_states, n), rng.integers(0, n_actions, n)
-    next_rows, dones = rng.integers(0, n_states, n), (rng.random(n) < 0.3).astype(np.float64)
-    return rows, actions, next_rows, dones, rng.integers(0, 3, (n, 2)).astype(np.float32)
-
-
-def assert_same_models(a: EmpiricalModel, b: EmpiricalModel) -> None:
-    for field in ("entries", "pair", "next_first", "probability", "continues", "reward"):
-        np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=1e-12, err_msg=field)
-
-
-@settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.integers(0, 30), st.integers(0, 30))
-def test_merged_experiences_are_the_experience_of_all_their_transitions(seed, n_first, n_second):
-    rng = np.random.default_rng(seed)
-    first, second = random_transitions(rng, n_first), random_transitions(rng, n_second)
-    pooled = tuple(np.concatenate(arrays) for arrays in zip(first, second, strict=True))
-    merged = Experience.from_transitions(*first, 4, 2).merge(Experience.from_transitions(*second, 4, 2))
-    expected = Experience.from_transitions(*pooled, 4, 2)
-    assert len(merged) == n_first + n_second
-    np.testing.assert_array_equal(merged.keys, expected.keys)
-    np.testing.assert_array_equal(merged.counts, expected.counts)
-    assert_same_models(merged.model(), expected.model())
-    assert_same_models(Experience.empty(4, 2, 2).merge(merged).model(), expected.model())
-
-
-def test_experiences_of_other_tables_do_not_merge():
-    with pytest.raises(ValueError, match="cannot merge the experience of a table of 5 states x 2 actions"):
-        Experience.empty(4, 2, 2).merge(Experience.empty(5, 2, 2))
-
-
-def test_an_experience_reads_back_from_its_arrays():
-    experience = Experience.from_transitions(*random_transitions(np.random.default_rng(0), 50), 4, 2)
-    again = Experience.from_arrays(experience.to_arrays())
-    assert (again.n_rows, again.n_actions) == (4, 2)
-    assert_same_models(again.model(), experience.model())
-
-
-def _broken(name: str, change) -> dict[str, np.ndarray]:
-    arrays = Experience.from_transitions(*random_transitions(np.random.default_rng(0), 50), 4, 2).to_arrays()
-    return {**arrays, name: change(arrays[name].copy())} if change else {k: v for k, v in arrays.items() if k != name}
-
-
-@pytest.mark.parametrize(
-    ("arrays", "message"),
-    [
-        (_broken("counts", None), r"lacks the arrays \['counts'\]"),
-        (_broken("sizes", lambda a: a[:1]), "'sizes' must be two positive integers"),
-        (_broken("sizes", lambda a: a.astype(np.float64)), "'sizes' must be two positive integers"),
-        (_broken("rewards", lambda a: a[:, 0]), "arrays of one length"),
-        (_broken("keys", lambda a: a[::-1]), "distinct, sorted"),
-        (_broken("keys", lambda a: a + 32 * 8), "inside a table of 4 x 2"),
-        (_broken("keys", lambda a: a + 1), "next states not at the start of a row"),
-        (_broken("counts", lambda a: a * 0), "never recorded"),
-        (_broken("dones", lambda a: a + 100), "terminations outside"),
-        (_broken("rewards", lambda a: a * np.nan), "not finite"),
-    ],
-)
-def test_bad_experience_arrays_are_refused(arrays, message):
-    with pytest.raises(ValueError, match=message):
-        Experience.from_arrays(arrays, "exp.npz")
-
-
-def test_planning_afresh_forgets_what_the_table_held():
-    model = Experience.from_transitions(*random_transitions(np.random.default_rng(1), 60), 4, 2).model()
-    w = np.array([0.3, 0.7], dtype=np.float32)
-    tables = [np.zeros((8, 2), dtype=np.float32), np.random.default_rng(2).random((8, 2)).astype(np.float32) * 9]
-    for table in tables:
-        assert plan_afresh(table, model, w, gamma=0.9, max_sweeps=2_000) < 2_000
-    np.testing.assert_array_equal(tables[0], tables[1])
-    untried = np.setdiff1d(np.arange(8), model.entries)
-    assert len(untried) == 0 or not tables[1][untried].any()

@@ -174,13 +174,13 @@ def test_the_four_room_example_prints_gpi_beside_the_a_priori_learners_per_weigh
 def test_the_four_room_examples_a_priori_runs_take_the_runs_sharing_and_env_not_their_schedule():
     example = load_example("four_room")
     args = argparse.Namespace(iterations=4, steps_per_iteration=100, apriori_seeds=[0], sharing="shared")
-    extra = ["--env=max_steps=50", "--iterations", "4", "--steps-per-iteration", "100", "--sharing", "shared"]
+    extra = ["--env=max_steps=50", "--iterations", "4", "--steps-per-iteration", "100", "--set", "sharing=shared"]
     specs = example.apriori_specs(args, extra)
     assert len(specs) == 12 and all(spec.algo == "fixed" for spec in specs)
     assert specs[0].options == (
         "--env=max_steps=50",
-        "--sharing",
-        "shared",
+        "--set",
+        "sharing=shared",
         "--iterations",
         "1",
         "--steps-per-iteration",

@@ -56,7 +56,7 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
         (["--steps-per-iteration", "0"], "--steps-per-iteration must be positive, got 0"),
         (["--learner", "gamma=2"], "gamma must be a number in [0, 1], got 2"),
         (["--learner", "batch_size=0"], "batch_size must be a positive integer, got 0"),
-        (["--validation-weights", "-1"], "--validation-weights must be 0 or more, got -1"),
+        (["--set", "validation_weights=-1"], "--set validation_weights must be an integer >= 0, got -1"),
         (["--env", "nosuchkey=1"], "the four-room env refuses"),
         (["--env", "observation_mode=bogus"], "unknown observation_mode 'bogus'"),
         (["--learner", "nosuchkwarg=1"], "unexpected keyword argument 'nosuchkwarg'"),
@@ -64,10 +64,13 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
             ["--learner", "learning_rate=abc"],
             "learning_rate must be a number >= 0 or a schedule ('lin_X', X >= 0), got 'abc'",
         ),
-        (["--algo", "fixed", "--w", "1", "0", "0", "--validation-weights", "3"], "not for --algo fixed"),
-        (["--validation-weights", "0", "--prune"], "--prune needs validation weights (--validation-weights N"),
-        (["--validation-weights", "0", "--admit-together"], "--admit-together needs validation weights"),
-        (["--algo", "random", "--ols-batch", "spread"], "--ols-batch is only for --algo ma-sfols"),
+        (["--algo", "fixed", "--w", "1", "0", "0", "--set", "validation_weights=3"], "not for --algo fixed"),
+        (
+            ["--set", "validation_weights=0", "--set", "prune=true"],
+            "--set prune=true needs validation weights (--set validation_weights=N",
+        ),
+        (["--set", "validation_weights=0", "--set", "admit_together=true"], "admit_together=true needs validation"),
+        (["--algo", "random", "--set", "ols_batch=top"], "--set ols_batch is only for --algo ma-sfols"),
     ],
 )
 def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, argv, message):
@@ -100,18 +103,19 @@ def test_numpy_scalars_are_accepted_as_options():
             ["--steps-per-iteration", "200"],
             "--steps-per-iteration 200 would change the run's steps_per_iteration (150)",
         ),
-        (["--n-test-weights", "5"], "--n-test-weights 5 would change the run's n_test_weights (2)"),
-        (["--transfer"], "--transfer True would change the run's transfer (False)"),
-        (["--gpi-behaviour"], "--gpi-behaviour True would change the run's gpi_behaviour (False)"),
-        (["--validation-weights", "0"], "--validation-weights 0 would change the run's validation_weights (4)"),
-        (["--no-prune"], "--prune False would change the run's prune (True)"),
-        (["--no-admit-together"], "--admit-together False would change the run's admit_together (True)"),
-        (["--ols-batch", "top"], "--ols-batch top would change the run's ols_batch (same-after-extrema)"),
+        (["--set", "n_test_weights=5"], "--set n_test_weights=5 would change the run's n_test_weights (2)"),
+        (["--set", "validation_weights=0"], "--set validation_weights=0 would change the run's validation_weights (4)"),
+        (["--set", "prune=false"], "--set prune=False would change the run's prune (True)"),
+        (["--set", "admit_together=false"], "--set admit_together=False would change the run's admit_together (True)"),
+        (["--set", "ols_batch=top"], "--set ols_batch=top would change the run's ols_batch (same-after-extrema)"),
+        (["--set", "value_mode=shared"], "--set value_mode=shared would change the run's value_mode (joint)"),
+        (["--set", "gpi_set=ccs"], "--set gpi_set=ccs would change the run's gpi_set (all)"),
+        (["--set", "eval_episodes=2"], "--set eval_episodes=2 would change the run's eval_episodes (1)"),
     ],
 )
 def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):
     out = str(tmp_path / "run")
-    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "150", "--n-test-weights", "2"]
+    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "150", "--set", "n_test_weights=2"]
     assert main([*train, *FEW_VALIDATION, "--no-progress", "--out", out]) == 0
     resume = ["train", "four-room", "--iterations", "2", "--no-progress", "--out", out, "--resume"]
     assert main([*resume, *argv]) == 2
@@ -138,7 +142,7 @@ def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
 
 def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_path):
     def train(out, timeout=None):
-        argv = ["train", "four-room", "--iterations", "3", "--steps-per-iteration", "300", "--n-test-weights", "2"]
+        argv = ["train", "four-room", "--iterations", "3", "--steps-per-iteration", "300", "--set", "n_test_weights=2"]
         argv += FEW_VALIDATION
         argv += ["--out", str(out), "--no-progress", *(["--resume"] if (out / "run.json").exists() else [])]
         process = subprocess.Popen([sys.executable, "-m", "sb3_sfgpi.cli", *argv], stdout=subprocess.DEVNULL)
@@ -231,7 +235,7 @@ def small_disk(tmp_path):
 def test_a_full_disk_stops_training_in_one_line_and_the_checkpoint_survives(small_disk):
     out = small_disk / "run"
     train = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(out), "--no-progress"]
-    budget = ["--steps-per-iteration", "150", "--n-test-weights", "2"]
+    budget = ["--steps-per-iteration", "150", "--set", "n_test_weights=2"]
     assert subprocess.run([*train, *budget, "--iterations", "1"], capture_output=True).returncode == 0
     filler = small_disk / "filler"
     subprocess.run(["dd", "if=/dev/zero", f"of={filler}", "bs=64k"], capture_output=True)  # ends at ENOSPC

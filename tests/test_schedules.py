@@ -109,43 +109,21 @@ def test_ols_with_exact_values_ends_with_the_ccs(angles, n_agents, seed):
     assert same_rows(schedule.ols.ccs, ccs)
 
 
-def test_spread_batch_hands_a_round_out_over_the_simplex():
-    """After the extrema (exact values of three policies), top-2 gives the two agents neighbouring corners (max-norm
-    distance 0.29); the spread batch gives the second agent the corner that still has most to gain once the first
-    agent's is taken (tests/test_ols.py shows the priorities)."""
-    policies = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])
-    rounds = {}
-    for batch in ("top", "spread"):
-        schedule = OLSSchedule(batch)
-        schedule.start(3)
-        rng = np.random.default_rng(0)
-        for w in [*schedule.next_weights(["a", "b"], rng).values(), *schedule.next_weights(["a"], rng).values()]:
-            schedule.add(policies[np.argmax(policies @ w)], w)  # the three extrema
-        rounds[batch] = schedule.next_weights(["a", "b"], rng)
-    np.testing.assert_allclose(rounds["top"]["a"], [5 / 12, 7 / 12, 0])
-    np.testing.assert_allclose(rounds["spread"]["a"], [5 / 12, 7 / 12, 0])
-    np.testing.assert_allclose(rounds["top"]["b"], [5 / 17, 7 / 17, 5 / 17])
-    np.testing.assert_allclose(rounds["spread"]["b"], [0, 2 / 7, 5 / 7])
+#: Three policies whose exact values, after the extrema, queue four corner weights (tests/test_ols.py)
+THREE_POLICIES = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])
 
 
-def test_same_batch_gives_every_agent_the_top_corner_weight_once():
-    schedule = OLSSchedule("same")
+def test_top_batch_hands_a_round_the_corner_weights_of_highest_priority():
+    """After the extrema (exact values of three policies), top-2 gives the two agents the two corners of highest
+    priority, here neighbouring ones (tests/test_ols.py shows the priorities)."""
+    schedule = OLSSchedule("top")
     schedule.start(3)
     rng = np.random.default_rng(0)
-    extrema = [schedule.next_weights(["a", "b"], rng) for _ in range(3)]
-    for round_ in extrema:  # one extremum per round, for both agents, each its own copy
-        assert round_["a"] is not round_["b"]
-        np.testing.assert_array_equal(round_["a"], round_["b"])
-    np.testing.assert_array_equal(sorted(r["a"].tolist() for r in extrema), np.eye(3)[::-1])
-    policies = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])  # as in the spread test above
-    for round_ in extrema:
-        for w in round_.values():
-            schedule.add(policies[np.argmax(policies @ w)], w)
-    fourth = schedule.next_weights(["a", "b"], rng)
-    np.testing.assert_allclose(fourth["a"], [5 / 12, 7 / 12, 0])  # top's first corner, for both
-    np.testing.assert_allclose(fourth["b"], [5 / 12, 7 / 12, 0])
-    second = schedule.next_weights(["a", "b"], rng)
-    np.testing.assert_allclose(second["a"], [5 / 17, 7 / 17, 5 / 17])  # then top's second: none is skipped
+    for w in [*schedule.next_weights(["a", "b"], rng).values(), *schedule.next_weights(["a"], rng).values()]:
+        schedule.add(THREE_POLICIES[np.argmax(THREE_POLICIES @ w)], w)  # the three extrema
+    round_ = schedule.next_weights(["a", "b"], rng)
+    np.testing.assert_allclose(round_["a"], [5 / 12, 7 / 12, 0])
+    np.testing.assert_allclose(round_["b"], [5 / 17, 7 / 17, 5 / 17])
 
 
 def test_ols_and_random_refuse_a_duplicate_value_into_the_set():
@@ -235,7 +213,7 @@ def test_fixed_schedule_validates_its_weights_at_start(weights, message):
 
 
 def test_same_after_extrema_hands_the_extrema_out_as_top_then_the_top_corner_weight_to_every_agent():
-    policies = np.array([[7.0, 3.0, 4.0], [9.0, 3.0, 2.0], [2.0, 8.0, 2.0]])  # as in the spread test above
+    policies = THREE_POLICIES
     rounds = {}
     for batch in ("top", "same-after-extrema"):
         schedule = OLSSchedule(batch)
@@ -254,6 +232,7 @@ def test_same_after_extrema_hands_the_extrema_out_as_top_then_the_top_corner_wei
     np.testing.assert_allclose(mixed[1]["b"], [5 / 12, 7 / 12, 0])
     np.testing.assert_allclose(mixed[2]["a"], [5 / 17, 7 / 17, 5 / 17])  # no extremum left: one weight for both
     np.testing.assert_allclose(mixed[2]["b"], [5 / 17, 7 / 17, 5 / 17])
+    assert mixed[2]["a"] is not mixed[2]["b"]  # each agent its own copy
     assert not np.allclose(top[2]["a"], top[2]["b"])
 
 
@@ -261,15 +240,13 @@ def test_same_after_extrema_hands_the_extrema_out_as_top_then_the_top_corner_wei
 def make(kind: str) -> WeightSchedule:
     schedules = {
         "ols": OLSSchedule,
-        "ols-spread": lambda: OLSSchedule("spread"),
-        "ols-same": lambda: OLSSchedule("same"),
         "ols-same-after-extrema": lambda: OLSSchedule("same-after-extrema"),
         "random": RandomSchedule,
     }
     return FixedSchedule([0.3, 0.7]) if kind == "fixed" else schedules[kind]()
 
 
-@pytest.mark.parametrize("kind", ["ols", "ols-spread", "ols-same", "ols-same-after-extrema", "random", "fixed"])
+@pytest.mark.parametrize("kind", ["ols", "ols-same-after-extrema", "random", "fixed"])
 def test_state_dict_through_json_restores_identical_behaviour(kind):
     values = arc_values([0.1, 0.5, 0.9, 1.3])
     original = make(kind)
@@ -326,16 +303,16 @@ def test_load_state_dict_refuses_a_fixed_schedule_with_other_weights():
 
 
 def test_load_state_dict_refuses_another_batch_and_reads_old_checkpoints_as_top():
-    saved = OLSSchedule("spread")
+    saved = OLSSchedule("same-after-extrema")
     saved.start(3)
     top = OLSSchedule("top")
     top.start(3)
-    with pytest.raises(ValueError, match="batch=spread, not top"):
+    with pytest.raises(ValueError, match="batch=same-after-extrema, not top"):
         top.load_state_dict(saved.state_dict())
     old = top.state_dict()
     del old["batch"]  # written before the setting existed: Algorithm 1's top priorities
     top.load_state_dict(old)
-    with pytest.raises(ValueError, match="batch=top, not spread"):
+    with pytest.raises(ValueError, match="batch=top, not same-after-extrema"):
         saved.load_state_dict(old)
 
 
@@ -358,12 +335,13 @@ def test_make_schedule_builds_each_kind():
 
 
 def test_ols_batch_is_only_for_ols_weights():
-    assert make_schedule("ols", ols_batch="spread").batch == "spread"
+    assert make_schedule("ols", ols_batch="same-after-extrema").batch == "same-after-extrema"
     for weights in ("random", [0.5, 0.5]):
-        with pytest.raises(ValueError, match="ols_batch='spread' is only for OLS weights"):
-            make_schedule(weights, ols_batch="spread")
-    with pytest.raises(ValueError, match="batch must be one of"):
-        make_schedule("ols", ols_batch="widest")
+        with pytest.raises(ValueError, match="ols_batch='same-after-extrema' is only for OLS weights"):
+            make_schedule(weights, ols_batch="same-after-extrema")
+    for removed in ("widest", "spread", "same"):  # spread and same were measured and removed
+        with pytest.raises(ValueError, match="batch must be one of"):
+            make_schedule("ols", ols_batch=removed)
 
 
 @pytest.mark.parametrize("name", ["nonsense", "OLS", "fixed", ""])

@@ -26,7 +26,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
 
 from sb3_sfgpi.common.vec_env import MODummyVecEnv, MOMonitor
-from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 
@@ -278,31 +277,6 @@ def test_the_behaviour_policy_breaks_ties_at_random_the_learned_policy_does_not(
     first = [int(model.predict(0)[0]) for _ in range(20)]
     np.random.seed(7)
     assert [int(model.predict(0)[0]) for _ in range(20)] == first  # the draws come from the seeded numpy.random
-
-
-@pytest.mark.parametrize("policy", ["TabularPolicy", "MlpPolicy"])
-def test_with_a_behaviour_set_the_behaviour_policy_acts_by_gpi_over_it_and_itself(make_fig1_env, policy, tmp_path):
-    def constant_psi(value: float) -> SFDQN:
-        """A model whose ψ(s, a) is 0 everywhere but ψ(s, C) = (0, value)."""
-        model = SFDQN(policy, make_fig1_env(), weights=[0.0, 1.0], seed=0)
-        with th.no_grad():
-            for parameter in model.policy.sf_net.parameters():
-                parameter.zero_()
-            net = model.policy.sf_net
-            layer = net.table.weight if policy == "TabularPolicy" else net.sf_net[-1].bias
-            layer.view(-1, 6)[:, 5] = value  # columns: (action, objective), C = 2
-        return model
-
-    model = constant_psi(-1.0)  # alone it never takes C: A and B tie at 0
-    model.exploration_rate = 0.0
-    assert 2 not in {int(model.predict(0, deterministic=False)[0]) for _ in range(50)}
-    model.behaviour_set = GPIPolicy([constant_psi(3.0)])  # GPI: C is worth 3 under the set's policy
-    assert {int(model.predict(0, deterministic=False)[0]) for _ in range(50)} == {2}
-    assert int(model.predict(0, deterministic=True)[0]) == 0  # the learned policy is its own
-    model.behaviour_set = GPIPolicy([constant_psi(-2.0)])  # a set worse everywhere changes nothing
-    assert 2 not in {int(model.predict(0, deterministic=False)[0]) for _ in range(50)}
-    model.save(tmp_path / "model.zip")
-    assert SFDQN.load(tmp_path / "model.zip").behaviour_set is None  # not saved with the model
 
 
 def test_argmax_random_ties_is_uniform_over_the_tied_actions_and_draws_nothing_without_ties():

@@ -1,7 +1,4 @@
-"""
-Parameter sharing: one SFDQN that every agent acts with and feeds (``sharing="shared"``); experience sharing: one
-SFDQN per agent that stores every agent's transitions (``sharing="experience"``).
-"""
+"""Parameter sharing: one SFDQN that every agent acts with and feeds (``sharing="shared"``)."""
 
 from __future__ import annotations
 
@@ -15,10 +12,10 @@ from hypothesis import strategies as st
 from momdp import REWARDS, TERMINAL
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 
-from sb3_sfgpi import MASFOLS
+from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.multiagent import EXPERIENCE, SHARED, MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.multiagent import SHARED, MultiAgentRunner, default_learner_factory
 
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
 
@@ -98,7 +95,11 @@ def test_one_shared_learner_acts_for_every_agent_in_one_batch():
 
 def test_shared_ma_sfols_finds_the_exact_ccs_on_the_chain():
     model = MASFOLS(
-        ParallelChainEnv(2), steps_per_iteration=600, learner_kwargs=LEARNER_KWARGS, test_weights=3, sharing="shared"
+        ParallelChainEnv(2),
+        steps_per_iteration=600,
+        learner_kwargs=LEARNER_KWARGS,
+        evaluation=EvaluationConfig(3),
+        sharing="shared",
     ).learn(max_iterations=10)
     assert model.callback.ended_by_schedule and len(model.history) < 10
     trained = [row["weights_trained"] for row in model.history]
@@ -119,26 +120,28 @@ def test_fixed_weights_with_a_shared_learner_evaluate_gpi_over_the_shared_polici
     (entry,) = model.history[-1]["test"]
     for returns in entry["agents"].values():
         assert np.dot([0.3, 0.7], returns["undiscounted"]) == pytest.approx(optimal_value(np.array([0.3, 0.7])))
+    independent = MASFOLS(  # one learner per agent: each agent is evaluated by GPI over its own policies
+        ParallelChainEnv(2), weights=[0.3, 0.7], steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS
+    )
+    assert independent.callback.evaluation.policies == "own"
 
 
 def test_bad_sharing_options_are_refused():
-    with pytest.raises(ValueError, match="sharing must be one of .*'independent', 'experience', 'shared'"):
-        MultiAgentRunner(ParallelChainEnv(2), sharing="pooled")
-    for sharing in (SHARED, EXPERIENCE):
-        with pytest.raises(ValueError, match="optimize_memory_usage=False"):
-            MASFOLS(
-                ParallelChainEnv(2), sharing=sharing, learner_kwargs={**LEARNER_KWARGS, "optimize_memory_usage": True}
-            )
+    for sharing in ("pooled", "experience"):  # experience sharing was measured and removed
+        with pytest.raises(ValueError, match="sharing must be one of .*'independent', 'shared'"):
+            MultiAgentRunner(ParallelChainEnv(2), sharing=sharing)
+    with pytest.raises(ValueError, match="optimize_memory_usage=False"):
+        MASFOLS(ParallelChainEnv(2), sharing=SHARED, learner_kwargs={**LEARNER_KWARGS, "optimize_memory_usage": True})
 
 
 def test_cli_trains_with_sharing_and_refuses_to_change_it_on_resume(tmp_path):
     out = tmp_path / "fr"
     train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--no-progress"]
-    assert main([*train, "--sharing", "shared", "--out", str(out)]) == 0
+    assert main([*train, "--set", "sharing=shared", "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["sharing"] == "shared"
     assert json.loads((out / "evaluation.json").read_text())[0]["weights_trained"].keys() == {SHARED}
     train[train.index("--iterations") + 1] = "2"
-    assert main([*train, "--sharing", "independent", "--out", str(out), "--resume"]) == 2
+    assert main([*train, "--set", "sharing=independent", "--out", str(out), "--resume"]) == 2
     assert main([*train, "--out", str(out), "--resume"]) == 0  # the stored sharing goes on
     assert json.loads((out / "checkpoint.json").read_text())["iteration"] == 2
 
@@ -150,7 +153,12 @@ def test_beach_with_twenty_agents_trains_one_shared_learner():
     env = SwapTerminationsTruncations(mobeach_v0.parallel_env(num_agents=20, num_timesteps=10))
     learner = dict(learning_starts=50, batch_size=16)
     model = MASFOLS(
-        env, policy="MlpPolicy", steps_per_iteration=100, test_weights=2, learner_kwargs=learner, sharing="shared"
+        env,
+        policy="MlpPolicy",
+        steps_per_iteration=100,
+        evaluation=EvaluationConfig(2),
+        learner_kwargs=learner,
+        sharing="shared",
     ).learn(max_iterations=2)
     shared = model.runner.learners[SHARED]
     assert shared.n_envs == 20 and shared.num_timesteps == 100 * 20  # every agent's transition, every joint step
@@ -162,42 +170,9 @@ def chain_runner(sharing: str, n_agents: int = 3) -> MultiAgentRunner:
     return MultiAgentRunner(env, default_learner_factory(**CHAIN_LEARNER), sharing=sharing)
 
 
-def test_with_experience_sharing_every_learner_stores_every_live_agents_transitions():
-    runner = chain_runner(EXPERIENCE)
-    assert runner.learner_names == ["agent_0", "agent_1", "agent_2"]
-    runner.start_iteration({name: np.array([0.5, 0.5]) for name in runner.learner_names}, 0, total_timesteps=100)
-    for _ in range(8):  # two episodes of 4 joint steps; agents 0, 1, 2 make 4, 3 and 2 transitions in each
-        runner.step()
-    stored = []
-    for name, own in zip(runner.learner_names, (8, 6, 4), strict=True):
-        learner = runner.learners[name]
-        assert learner.n_envs == 1 and learner.num_timesteps == own and learner._episode_num == 2  # its own agent's
-        obs, actions, next_obs, dones, rewards = learner.replay_buffer.stored_arrays()  # everyone's: 18 rows
-        assert sorted(obs.reshape(-1).tolist()) == sorted([0, 1, 1, 2, 2, 2, 3, 3, 3] * 2)
-        np.testing.assert_array_equal(next_obs.reshape(-1), obs.reshape(-1) + 1)
-        np.testing.assert_array_equal(dones.reshape(-1), next_obs.reshape(-1) == TERMINAL)
-        np.testing.assert_array_equal(rewards, REWARDS[obs.reshape(-1), actions.reshape(-1)])
-        stored.append(sorted(zip(obs.reshape(-1).tolist(), actions.reshape(-1).tolist(), strict=True)))
-    assert stored[0] == stored[1] == stored[2]  # the same transitions, the actions each agent's learner chose
-
-
-def test_with_experience_sharing_only_learners_of_the_same_weights_share():
-    runner = chain_runner(EXPERIENCE)
-    weights = {"agent_0": np.array([0.5, 0.5]), "agent_1": np.array([0.5, 0.5]), "agent_2": np.array([1.0, 0.0])}
-    runner.start_iteration(weights, 0, total_timesteps=100)
-    for _ in range(8):
-        runner.step()
-    visited = {
-        name: sorted(runner.learners[name].replay_buffer.stored_arrays()[0].reshape(-1).tolist()) for name in weights
-    }
-    assert visited["agent_0"] == visited["agent_1"] == sorted([0, 1, 2, 3, 1, 2, 3] * 2)  # agents 0 and 1's
-    assert visited["agent_2"] == [2, 2, 3, 3]  # its own: nobody else trains for [1, 0]
-
-
-@pytest.mark.parametrize("sharing", ["independent", EXPERIENCE])
-def test_with_experience_sharing_a_learner_learns_the_states_only_other_agents_visit(sharing):
+def test_an_independent_learner_learns_only_the_states_its_own_agent_visits():
     w = np.array([0.3, 0.7])
-    runner = chain_runner(sharing, n_agents=2)
+    runner = chain_runner("independent", n_agents=2)
     runner.start_iteration({name: w for name in runner.learner_names}, 0, total_timesteps=600)
     for _ in range(600):
         runner.step()
@@ -206,31 +181,4 @@ def test_with_experience_sharing_a_learner_learns_the_states_only_other_agents_v
         name: (learner.successor_features(np.array([0]))[0] @ w).max() for name, learner in runner.learners.items()
     }
     assert values["agent_0"] == pytest.approx(optimal_value(w), abs=1e-3)
-    if sharing == EXPERIENCE:  # agent_1 starts at state 1, yet its table knows state 0 from agent_0's transitions
-        assert values["agent_1"] == pytest.approx(optimal_value(w), abs=1e-3)
-    else:
-        assert values["agent_1"] == 0.0
-
-
-def test_experience_sharing_ma_sfols_finds_the_exact_ccs_and_evaluates_fixed_weights_by_own_policies():
-    model = MASFOLS(
-        ParallelChainEnv(2), steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS, test_weights=3, sharing=EXPERIENCE
-    ).learn(max_iterations=10)
-    assert model.callback.ended_by_schedule
-    assert model.history[0]["weights_trained"] == {"agent_0": [1.0, 0.0], "agent_1": [0.0, 1.0]}  # two per iteration
-    for w0 in np.linspace(0, 1, 21):
-        w = np.array([w0, 1 - w0])
-        assert model.policy_set.q_values(np.array([0]), w).max() == pytest.approx(optimal_value(w), abs=1e-3)
-    fixed = MASFOLS(
-        ParallelChainEnv(2), weights=[0.3, 0.7], steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS,
-        sharing=EXPERIENCE,
-    )  # fmt: skip
-    assert fixed.callback.evaluation.policies == "own"
-
-
-def test_cli_trains_with_experience_sharing(tmp_path):
-    out = tmp_path / "fr"
-    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--no-progress"]
-    assert main([*train, "--sharing", "experience", "--out", str(out)]) == 0
-    assert json.loads((out / "run.json").read_text())["sharing"] == EXPERIENCE
-    assert json.loads((out / "evaluation.json").read_text())[0]["weights_trained"].keys() == {"agent_0", "agent_1"}
+    assert values["agent_1"] == 0.0  # agent_1 starts at state 1: its table knows nothing of state 0

@@ -15,7 +15,10 @@ from sb3_sfgpi.cli import main
 from sb3_sfgpi.sweep import RunSpec, grid, read_spec, run_sweep, train_run
 
 #: Four-room runs of a few seconds: short episodes, small iterations, few test weights, no validation.
-TINY = ("--env", "max_steps=30", "--steps-per-iteration", "600", "--n-test-weights", "2", "--validation-weights", "0")
+TINY = (
+    "--env", "max_steps=30", "--steps-per-iteration", "600",
+    "--set", "n_test_weights=2", "--set", "validation_weights=0",
+)  # fmt: skip
 
 
 def test_grid_makes_every_combination_and_names_each_run():

@@ -205,72 +205,6 @@ def test_observations_in_unit_box_and_episode_end(make_env):
         env.step({})
 
 
-def test_approach_zone_observes_the_moving_vehicles_before_the_stop_line(make_env):
-    """The extra features count, per vehicle lane, the vehicles at 0.1 m/s or faster in the zone, over its capacity;
-    the rest of the observation and the dynamics are those of the env without them."""
-    plain, env = make_env(seed=4, backend="traci"), make_env(seed=4, approach_zone=30)
-    assert env.observation_space("J1").shape == (19,)  # 15 + one per vehicle lane (4)
-    plain.reset(), env.reset()
-    api = env.sim.api
-    rng = np.random.default_rng(5)
-    seen = 0.0
-    while env.agents:
-        actions = {a: int(rng.integers(2)) for a in env.agents}
-        obs, rewards, *_ = env.step(actions)
-        plain_obs, plain_rewards, *_ = plain.step(actions)
-        for j, layout in env.layouts.items():
-            expected = [
-                min(
-                    1.0,
-                    sum(
-                        api.vehicle.getLanePosition(v) >= api.lane.getLength(lane) - 30
-                        and api.vehicle.getSpeed(v) >= 0.1
-                        for v in api.lane.getLastStepVehicleIDs(lane)
-                    )
-                    / 4.0,
-                )  # 30 m hold 4 vehicles of 7.5 m
-                for lane in layout.vehicle_lanes
-            ]
-            np.testing.assert_allclose(obs[j][15:], expected, atol=1e-6)
-            np.testing.assert_array_equal(obs[j][:15], plain_obs[j])
-            np.testing.assert_array_equal(rewards[j], plain_rewards[j])
-            seen = max(seen, *expected)
-    assert 0 < seen <= 1
-
-
-def test_observe_waiting_adds_each_lanes_longest_wait(make_env, listen):
-    """The extra features are, per incoming lane, the longest wait at the intersection of a vehicle or person on it
-    over ``max_green`` (clipped to 1), recomputed every second from the SUMO API; the rest is Eq. 22's observation."""
-    plain, env = make_env(seed=4, max_green=40), make_env(seed=4, backend="traci", observe_waiting=True, max_green=40)
-    assert env.observation_space("J1").shape == (21,)  # 15 + one per lane (6)
-    plain.reset(), env.reset()
-    api = env.sim.api
-    rec = WaitingRecorder(api, env.possible_agents)
-    listen(api, rec)
-    rng = np.random.default_rng(5)
-    seen = np.zeros(6)
-    while env.agents:
-        actions = {a: int(rng.integers(2)) for a in env.agents}
-        obs, rewards, *_ = env.step(actions)
-        plain_obs, plain_rewards, *_ = plain.step(actions)
-        for j in env.possible_agents:
-            waited = {v: api.vehicle.getAccumulatedWaitingTime(v) - entry for v, entry in rec.entry[j].items()}
-            vehicles = [
-                max((waited[v] for v in api.lane.getLastStepVehicleIDs(lane)), default=0.0) for lane in rec.veh_lanes[j]
-            ]
-            persons = [
-                max((rec.ped_wait[j].get(p, 0.0) for p in api.edge.getLastStepPersonIDs(e)), default=0.0)
-                for e in rec.ped_edges[j]
-            ]
-            expected = np.minimum(1.0, np.array(vehicles + persons) / 40)
-            np.testing.assert_allclose(obs[j][15:], expected, atol=1e-6)
-            np.testing.assert_array_equal(obs[j][:15], plain_obs[j])
-            np.testing.assert_array_equal(rewards[j], plain_rewards[j])
-            seen = np.maximum(seen, expected)
-    assert (seen[:4] > 0).sum() >= 2 and seen[4:].max() > 0  # vehicles and persons waited
-    assert seen.max() <= 1
-
-
 @pytest.mark.parametrize("backend", ["libsumo", "traci"])
 def test_reward_is_change_of_waiting_times(make_env, listen, backend):
     env = make_env(seed=2, backend=backend, num_seconds=200 if backend == "libsumo" else 160)
@@ -584,8 +518,6 @@ def test_simulation_dies_mid_episode_traci(make_env):
         ({"signal_control": "magic"}, "signal_control"),
         ({"backend": "libsumo", "gui": True}, "traci"),
         ({"backend": "nope"}, "backend"),
-        ({"approach_zone": -5}, "approach_zone"),
-        ({"approach_zone": True}, "approach_zone"),
     ],
 )
 def test_invalid_arguments(kwargs, match):

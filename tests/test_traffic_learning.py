@@ -23,11 +23,11 @@ from sb3_sfgpi.sfdqn import SFNetwork  # noqa: E402
 ENV_KWARGS = {"num_seconds": 40, "reward_scale": 0.02}
 # 2 iterations of 16 joint steps on 40 s episodes (8 decisions), 3 test weights, learning from the 8th step.
 TINY = [
-    "--iterations", "2", "--steps-per-iteration", "16", "--n-test-weights", "3", "--no-progress", "--seed", "3",
+    "--iterations", "2", "--steps-per-iteration", "16", "--set", "n_test_weights=3", "--no-progress", "--seed", "3",
     "--env", "num_seconds=40", "--learner", "learning_starts=12", "--learner", "batch_size=8",
 ]  # fmt: skip
 #: every policy joins Π, as the tests below count them (validation and pruning: tests/test_validation.py)
-ALL_JOIN = ["--validation-weights", "0"]
+ALL_JOIN = ["--set", "validation_weights=0"]
 
 
 def _random_policy_set(tmp_path):
@@ -119,8 +119,8 @@ def test_train_traffic_workers_crash_and_resume(tmp_path, monkeypatch, capsys):
     the last checkpoint and --resume finishes exactly the run that was never interrupted."""
     train = ["train", "traffic", *TINY, *ALL_JOIN, "--algo", "random"]  # random weights: never ends before the cap
     reference, parallel, crashed = tmp_path / "in-process", tmp_path / "workers", tmp_path / "crashed"
-    assert main([*train, "--eval-workers", "0", "--out", str(reference)]) == 0
-    assert main([*train, "--eval-workers", "2", "--out", str(parallel)]) == 0
+    assert main([*train, "--set", "eval_workers=0", "--out", str(reference)]) == 0
+    assert main([*train, "--set", "eval_workers=2", "--out", str(parallel)]) == 0
     config = json.loads((parallel / "run.json").read_text())
     assert config["env_kwargs"]["num_seconds"] == 40 and config["eval_workers"] == 2
     checkpoint = json.loads((parallel / "checkpoint.json").read_text())
@@ -143,7 +143,7 @@ def test_train_traffic_workers_crash_and_resume(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(MultiAgentRunner, "step", crash_in_second_iteration)
     capsys.readouterr()
-    assert main([*train, "--eval-workers", "0", "--out", str(crashed)]) == 1
+    assert main([*train, "--set", "eval_workers=0", "--out", str(crashed)]) == 1
     error = capsys.readouterr().err.strip()
     assert len(error.splitlines()) == 1
     assert "SUMO simulation stopped unexpectedly" in error and "1 done" in error and "--resume" in error
@@ -152,14 +152,14 @@ def test_train_traffic_workers_crash_and_resume(tmp_path, monkeypatch, capsys):
     assert len(GPIPolicy.load(crashed / "policy_set")) >= checkpoint["n_policies"]
 
     monkeypatch.setattr(MultiAgentRunner, "step", step)
-    assert main([*train, "--eval-workers", "0", "--out", str(crashed), "--resume"]) == 0
+    assert main([*train, "--set", "eval_workers=0", "--out", str(crashed), "--resume"]) == 0
     assert json.loads((crashed / "checkpoint.json").read_text())["iteration"] == 2
     assert _evaluation(crashed) == _evaluation(reference)  # exactly the run that was never interrupted
 
 
 def test_fixed_weight_learners_compare_and_plots(tmp_path):
     masfols, fixed = tmp_path / "masfols", tmp_path / "fixed"
-    assert main(["train", "traffic", *TINY, *ALL_JOIN, "--eval-workers", "0", "--out", str(masfols)]) == 0
+    assert main(["train", "traffic", *TINY, *ALL_JOIN, "--set", "eval_workers=0", "--out", str(masfols)]) == 0
     assert main(["train", "traffic", *TINY, "--algo", "fixed", "--w", "0.4", "0.6", "--out", str(fixed)]) == 0
     config = json.loads((fixed / "run.json").read_text())
     # the same steps per agent as an MA-SFOLS run of this budget, in one iteration

@@ -166,9 +166,10 @@ def test_masfols_trains_on_the_grid_through_the_cli(tmp_path, capsys):
     out = tmp_path / "grid"
     env_args = [f"net_file={GRID['net_file']}", f"route_file={GRID['route_file']}", f"objectives={json.dumps(TWO)}"]
     argv = ["train", "traffic", "--out", str(out), "--iterations", "2", "--steps-per-iteration", "40",
-            "--n-test-weights", "3", "--eval-workers", "0", "--no-progress", "--seed", "0", "--env", "num_seconds=100",
-            *[arg for env_arg in env_args for arg in ("--env", env_arg)],
-            "--learner", "learning_starts=20", "--learner", "batch_size=8", "--validation-weights", "0"]  # fmt: skip
+            "--set", "n_test_weights=3", "--set", "eval_workers=0", "--no-progress", "--seed", "0",
+            "--env", "num_seconds=100", *[arg for env_arg in env_args for arg in ("--env", env_arg)],
+            "--learner", "learning_starts=20", "--learner", "batch_size=8",
+            "--set", "validation_weights=0"]  # fmt: skip
     assert main(argv) == 0
     evaluation = json.loads((out / "evaluation.json").read_text())
     assert [row["iteration"] for row in evaluation] == [1, 2]

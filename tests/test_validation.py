@@ -11,7 +11,7 @@ import torch as th
 from momdp import N_ACTIONS, N_STATES, REWARD_DIM
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv
 
-from sb3_sfgpi import EvaluationConfig, MultiAgentRunner, OLSCallback, PolicyValidation
+from sb3_sfgpi import Admission, EvaluationConfig, MultiAgentRunner, OLSCallback
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import summarize_test_episodes
@@ -49,13 +49,14 @@ def run(
     prune: bool = False,
     together: bool = False,
     factory: LearnerFactory | None = None,
+    verbose: int = 0,
     **kwargs,
 ) -> OLSCallback:
     runner = MultiAgentRunner(ParallelChainEnv(2), factory or liar_factory(liar), seed=0)
-    validation = PolicyValidation(n_weights, prune=prune, together=together)
+    admission = Admission(n_weights, prune=prune, together=together, verbose=verbose)
     evaluation = EvaluationConfig(TEST_WEIGHTS)
     callback = OLSCallback(
-        RandomSchedule(), steps, evaluation, validation=validation, max_iterations=iterations, **kwargs
+        RandomSchedule(), steps, evaluation, admission=admission, max_iterations=iterations, verbose=verbose, **kwargs
     )
     runner.learn(iterations * steps, callback)
     return callback
@@ -79,7 +80,7 @@ def test_a_policy_that_overestimates_is_left_out_and_training_is_the_same():
 
 def validation_score(runner: MultiAgentRunner, policy_set) -> float:
     """The rule restated: mean over the validation weights and agents of GPI's discounted w·return."""
-    weights = PolicyValidation(4).weights(2, runner.seed)
+    weights = Admission(4).weights(2, runner.seed)
     returns = [
         runner.rollout(policy_set.joint_policy(w), 1, derive_seed(runner.seed, "validation", i))
         for i, w in enumerate(weights)
@@ -96,31 +97,31 @@ def test_gpi_on_the_validation_weights_never_gets_worse():
 
 
 def test_validation_weights_are_the_extrema_then_draws_of_the_runs_seed():
-    weights = PolicyValidation(6).weights(3, seed=5)
+    weights = Admission(6).weights(3, seed=5)
     assert weights.shape == (9, 3)
     np.testing.assert_array_equal(weights[:3], np.eye(3))
     np.testing.assert_allclose(weights.sum(axis=1), 1.0)
     assert (weights >= 0).all()
-    np.testing.assert_array_equal(weights, PolicyValidation(6).weights(3, seed=5))
-    assert not np.allclose(weights[3:], PolicyValidation(6).weights(3, seed=6)[3:])
+    np.testing.assert_array_equal(weights, Admission(6).weights(3, seed=5))
+    assert not np.allclose(weights[3:], Admission(6).weights(3, seed=6)[3:])
     assert not np.allclose(weights[3:], random_weights(3, 6, rng=0))  # not the test weights of the CLI and MASFOLS
-    np.testing.assert_array_equal(PolicyValidation(0).weights(2, seed=0), np.eye(2))
+    np.testing.assert_array_equal(Admission(0).weights(2, seed=0), np.eye(2))
 
 
 @pytest.mark.parametrize("n_weights", [-1, True, 1.5])
 def test_a_bad_number_of_validation_weights_is_refused(n_weights):
-    with pytest.raises(ValueError, match="n_weights"):
-        PolicyValidation(n_weights)
+    with pytest.raises(ValueError, match="validation_weights must be a non-negative integer"):
+        Admission(n_weights)
 
 
 def test_validation_is_refused_where_agents_act_on_their_own_policies():
     with pytest.raises(ValueError, match="episodes"):
-        PolicyValidation(2, episodes=0)
+        Admission(2, episodes=0)
     with pytest.raises(ValueError, match="own"):
         own = EvaluationConfig(TEST_WEIGHTS, policies="own")
-        OLSCallback(RandomSchedule(), 10, own, validation=PolicyValidation(2))
+        OLSCallback(RandomSchedule(), 10, own, admission=Admission(2))
     with pytest.raises(ValueError, match="own"):
-        MASFOLS(ParallelChainEnv(2), weights=[0.5, 0.5], validation_weights=2)
+        MASFOLS(ParallelChainEnv(2), weights=[0.5, 0.5], admission=Admission(2))
 
 
 # --- pruning --------------------------------------------------------------------------------------------------------
@@ -147,7 +148,7 @@ def test_after_pruning_no_single_policy_left_out_makes_gpi_better():
     callback = run(4, steps=40, iterations=6, prune=True)  # short training: policies of every quality
     runner, policy_set = callback.model, callback.policy_set
     score = validation_score(runner, policy_set)
-    assert score == pytest.approx(callback._gpi_validation_score())
+    assert score == pytest.approx(callback.admission._current(policy_set))  # its cached score
     for i in range(len(policy_set)):
         assert validation_score(runner, policy_set.subset(j for j in range(len(policy_set)) if j != i)) <= score
 
@@ -167,10 +168,9 @@ def test_a_pruned_run_continues_exactly_and_saves_its_record(tmp_path):
 
 
 def test_pruning_needs_validation_weights():
-    with pytest.raises(ValueError, match="n_weights must be positive"):
-        PolicyValidation(0, prune=True)
-    with pytest.raises(ValueError, match="n_weights must be positive"):
-        MASFOLS(ParallelChainEnv(2), prune=True)
+    with pytest.raises(ValueError, match="pruning Π needs validation weights: validation_weights must be positive"):
+        Admission(0, prune=True)
+    assert Admission(1, prune=True).prune
 
 
 # --- admitting together ---------------------------------------------------------------------------------------------
@@ -227,7 +227,7 @@ def test_policies_that_only_help_gpi_together_join_together():
         ("agent_0", 1), ("agent_0", 2), ("agent_1", 2)
     ]  # fmt: skip
     assert len(one_by_one.record) == 1 and len(together.record) == 3  # left out: not in the run's record
-    assert together._gpi_validation_score() == pytest.approx(validation_score(runner, together.policy_set))
+    assert together.admission._current(policy_set) == pytest.approx(validation_score(runner, policy_set))
     assert together.history[1]["mean_return"] > one_by_one.history[1]["mean_return"]
     # the same weights were trained and the same values went to the schedule
     assert json.dumps(together.schedule.state_dict()) == json.dumps(one_by_one.schedule.state_dict())
@@ -240,7 +240,8 @@ def test_policies_that_are_worse_together_stay_out(capsys):
     assert "agent_0 and agent_1's policies together left out of Π" in capsys.readouterr().out  # tried, kept out
     assert [(i.agent, i.iteration) for i in callback.policy_set.infos] == [("agent_0", 1)]
     assert len(callback.record) == 1
-    assert callback._gpi_validation_score() == pytest.approx(validation_score(callback.model, callback.policy_set))
+    score = validation_score(callback.model, callback.policy_set)
+    assert callback.admission._current(callback.policy_set) == pytest.approx(score)
 
 
 def test_policies_that_tie_together_join_together():
@@ -257,7 +258,6 @@ def test_policies_that_tie_together_join_together():
 
 
 def test_admitting_together_needs_validation_weights():
-    with pytest.raises(ValueError, match="n_weights must be positive"):
-        PolicyValidation(0, together=True)
-    with pytest.raises(ValueError, match="n_weights must be positive"):
-        MASFOLS(ParallelChainEnv(2), admit_together=True)
+    with pytest.raises(ValueError, match="together needs validation weights: validation_weights must be positive"):
+        Admission(0, together=True)
+    assert Admission(1, together=True).together

@@ -13,8 +13,10 @@ from example_scripts import load_example
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.presets import load_domain
 
-TRAIN = ["train", "four-room", "--iterations", "4", "--steps-per-iteration", "400", "--n-test-weights", "4"]
+TRAIN = ["train", "four-room", "--iterations", "4", "--steps-per-iteration", "400", "--set", "n_test_weights=4"]
+#: the rules, as the replay takes them and as ``train`` does
 RULES = ["--validation-weights", "6", "--prune", "--admit-together"]
+TRAIN_RULES = ["--set", "validation_weights=6", "--set", "prune=true", "--set", "admit_together=true"]
 
 
 @pytest.fixture(scope="module")
@@ -30,9 +32,11 @@ def runs(request, tmp_path_factory):
     root = tmp_path_factory.mktemp("replay")
     validated, kept = root / "validated", root / "kept"
     seed = ["--no-progress", "--seed", str(request.param)]
-    keep_all = ["--validation-weights", "0", "--no-prune", "--no-admit-together"]
-    assert main([*TRAIN, *seed, *RULES, "--out", str(validated)]) == 0
+    keep_all = ["--set", "validation_weights=0"]  # no validation: no pruning, nothing admitted together either
+    assert main([*TRAIN, *seed, *TRAIN_RULES, "--out", str(validated)]) == 0
     assert main([*TRAIN, *seed, *keep_all, "--out", str(kept)]) == 0
+    config = json.loads((kept / "run.json").read_text())
+    assert (config["validation_weights"], config["prune"], config["admit_together"]) == (0, False, False)
     return validated, kept
 
 
@@ -83,7 +87,7 @@ class ScoredSets:
 
 @pytest.mark.parametrize(
     ("with_both", "together", "one_by_one"),
-    [(1.0, [0, 1, 2], [0]), (0.9, [0], [0])],  # a tie with Π joins ("no worse", as PolicyValidation); lower stays out
+    [(1.0, [0, 1, 2], [0]), (0.9, [0], [0])],  # a tie with Π joins ("no worse", as Admission); lower stays out
 )
 def test_the_replay_admits_left_out_policies_that_tie_together(example, with_both, together, one_by_one):
     scores = ScoredSets({(0,): 1.0, (0, 1): 0.8, (0, 2): 0.7, (0, 1, 2): with_both})  # 1 and 2 each lower GPI alone
@@ -99,11 +103,18 @@ def test_the_replay_admits_a_policy_that_ties_one_by_one(example):
 @pytest.mark.parametrize(
     ("which", "change", "extra", "message"),
     [
-        ("validated", {}, [], "replay needs --validation-weights 0 --no-prune"),
+        ("validated", {}, [], "replay needs --set validation_weights=0"),
         ("kept", {}, ["--validation-weights", "0"], "validation needs validation weights"),
         ("kept", {"algorithm": "fixed"}, [], "is a run of fixed weights"),
-        ("kept", {"gpi_behaviour": True}, [], "trained with Π in the loop"),
-        ("kept", {"value_mode": "gpi"}, [], "trained with Π in the loop"),
+        ("kept", {"gpi_behaviour": True}, [], "trained with gpi_behaviour, levers this version removed"),
+        ("kept", {"transfer": True, "replan": True}, [], "trained with transfer, replan, levers this version removed"),
+        ("kept", {"value_mode": "gpi"}, [], "trained with value_mode=gpi, levers this version removed"),
+        (
+            "kept",
+            {"transfer": False, "gpi_behaviour": False, "replan": False, "env_kwargs": {"size": 3}},
+            [],
+            "the four-room env refuses",
+        ),  # fmt: skip
         ("kept", {"env_kwargs": {"size": 3}}, [], "the four-room env refuses"),
         ("kept", {"test_weights": [[0.5, 0.5]]}, [], "test weights of shape (1, 2) for policies of 3 objectives"),
         ("nowhere", None, [], "is not a run directory"),

@@ -84,19 +84,12 @@ def _check_choice(name: str, value: Any, choices: Sequence[Any]) -> None:
         raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
 
 
-def _check_metres(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not 0.0 <= value < np.inf:
-        raise ValueError(f"{name} must be a number of metres >= 0, got {value!r}")
-    return float(value)
-
-
 class TrafficSignalEnv(ParallelEnv):
     """Traffic lights with vehicles and pedestrians, one agent per light, vector rewards.
 
     Observation of an agent (float32, all entries in [0, 1]), Eq. 22::
 
-        [rho_0 .. rho_{G-1}, tau, density_1 .. density_L, queue_1 .. queue_L
-         (, approach_1 .. approach_V)(, wait_1 .. wait_L)]
+        [rho_0 .. rho_{G-1}, tau, density_1 .. density_L, queue_1 .. queue_L]
 
     * ``rho``: one-hot of the green phase shown (during yellow: the green that comes next), over the
       ``G`` green phases of the light's static program; in the default network phase 0 = N-S vehicles
@@ -104,12 +97,7 @@ class TrafficSignalEnv(ParallelEnv):
     * ``tau``: elapsed green time / ``max_green`` (0 during yellow);
     * for each incoming lane ``l`` -- the controlled vehicle lanes, then the incoming sidewalk and the
       waiting area in front of the crossing -- number of vehicles/persons (density) and of queued ones
-      (vehicles below 0.1 m/s, persons standing) divided by the lane's capacity, clipped to 1;
-    * with ``approach_zone > 0`` (not in Eq. 22), for each of the ``V`` vehicle lanes the moving vehicles
-      (0.1 m/s or faster) in its last ``approach_zone`` metres before the stop line, divided by the capacity of that
-      stretch, clipped to 1: what the detectors of an actuated program see;
-    * with ``observe_waiting`` (not in Eq. 22), for each incoming lane the longest waiting time at the intersection
-      of a vehicle or person on it, divided by ``max_green`` and clipped to 1: what the waiting-time rewards count.
+      (vehicles below 0.1 m/s, persons standing) divided by the lane's capacity, clipped to 1.
 
     Actions (``action_mode="change"``, the paper's): ``Discrete(2)``, 0 keep, 1 change to the next green
     of the cycle; (``"phase"``, sumo-rl's): ``Discrete(G)``, the green to show. A change before
@@ -144,10 +132,6 @@ class TrafficSignalEnv(ParallelEnv):
     :param early_change: what a change asked for before ``min_green`` seconds of green does: ``"ignore"``
         (nothing) or ``"defer"`` (it is made at ``min_green``, so that a green can last exactly ``min_green`` on a
         decision grid that does not fall on it).
-    :param approach_zone: length [m] of the stretch before each vehicle lane's stop line whose moving vehicles are
-        observed (one more feature per vehicle lane, see above); 0 (default): Eq. 22's observation.
-    :param observe_waiting: add each incoming lane's longest wait to the observation (one more feature per lane,
-        see above); ``False`` (default): Eq. 22's observation.
     :param objectives: names from :data:`~.objectives.MENU`, one reward component each, in order
         (``"pedestrian_waiting"`` needs a network with signalised crossings).
     :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green).
@@ -191,8 +175,6 @@ class TrafficSignalEnv(ParallelEnv):
         min_green: int = 10,
         max_green: int = 50,
         early_change: str = "ignore",
-        approach_zone: float = 0.0,
-        observe_waiting: bool = False,
         objectives: Sequence[str] = DEFAULT_OBJECTIVES,
         action_mode: str = "change",
         signal_control: str = "agent",
@@ -213,10 +195,6 @@ class TrafficSignalEnv(ParallelEnv):
         _check_choice("action_mode", action_mode, ACTION_MODES)
         self._set_timing(num_seconds, begin_time, delta_time, yellow_time, min_green, max_green)
         self.early_change = early_change
-        self.approach_zone = _check_metres("approach_zone", approach_zone)
-        if not isinstance(observe_waiting, (bool, np.bool_)):
-            raise ValueError(f"observe_waiting must be True or False, got {observe_waiting!r}")
-        self.observe_waiting = bool(observe_waiting)
         self.objectives = select_objectives(objectives)
         self.objective_names = tuple(o.name for o in self.objectives)
         """The reward components' names, in order."""
@@ -292,7 +270,7 @@ class TrafficSignalEnv(ParallelEnv):
         self.agents: list[str] = []
         n_greens = {a: len(self._programs[a].greens) for a in self.possible_agents}
         self.observation_spaces = {
-            a: spaces.Box(0.0, 1.0, shape=(self._n_features(n_greens[a], lay),), dtype=np.float32)
+            a: spaces.Box(0.0, 1.0, shape=(n_greens[a] + 1 + 2 * lay.n_lanes,), dtype=np.float32)
             for a, lay in self.layouts.items()
         }
         self.action_spaces = {
@@ -309,10 +287,6 @@ class TrafficSignalEnv(ParallelEnv):
             for a in self.possible_agents
         ]
         self._lookups = [self._programs[a].lookup() for a in self.possible_agents]
-
-    def _n_features(self, n_greens: int, layout: IntersectionLayout) -> int:
-        per_lane = 3 if self.observe_waiting else 2
-        return n_greens + 1 + per_lane * layout.n_lanes + (len(layout.vehicle_lanes) if self.approach_zone else 0)
 
     def _check_objectives(self) -> None:
         if any(o.needs_pedestrians for o in self.objectives) and not any(
@@ -444,10 +418,7 @@ class TrafficSignalEnv(ParallelEnv):
         self._counters = (sim.getDepartedNumber, sim.getArrivedNumber, sim.getDepartedPersonNumber,
                           sim.getArrivedPersonNumber)  # fmt: skip
         emissions = "co2" in self.objective_names
-        self._monitors = [
-            IntersectionMonitor(api, self.layouts[a], emissions=emissions, approach_zone=self.approach_zone)
-            for a in self.possible_agents
-        ]
+        self._monitors = [IntersectionMonitor(api, self.layouts[a], emissions=emissions) for a in self.possible_agents]
 
     def _active_program(self, tls: str) -> SignalProgram:
         tl = self._api.trafficlight
@@ -566,10 +537,7 @@ class TrafficSignalEnv(ParallelEnv):
         dens, queue = self._monitors[i].lane_features()
         vec = [0.0] * len(self._programs[self.possible_agents[i]].greens) + [tau]
         vec[green] = 1.0
-        features = vec + dens + queue + self._monitors[i].approaching()
-        if self.observe_waiting:
-            features += [min(1.0, w / self.max_green) for w in self._monitors[i].longest_waits()]
-        return np.array(features, dtype=np.float32)
+        return np.array(vec + dens + queue, dtype=np.float32)
 
     def _info(self, i: int) -> dict[str, Any]:
         last = self._last[i]

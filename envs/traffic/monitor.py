@@ -19,15 +19,6 @@ Pedestrians (Eq. 25)
 When a vehicle or person leaves the approach its waiting time moves to a "done" total, so
 ``done + W`` is the total waiting time spent at this intersection during the episode.
 
-Approaching vehicles
-    With ``approach_zone > 0``, the moving vehicles (0.1 m/s or faster) in the last ``approach_zone`` metres of
-    every incoming vehicle lane before its stop line: what the detectors of an actuated program see.
-
-Longest waits
-    :meth:`longest_waits`: per incoming lane (vehicle lanes, then the pedestrian approach edges) the longest
-    waiting time at this intersection of a vehicle or person on it now: what the waiting-time rewards count and
-    densities and queues do not show (a vehicle queued for 2 s and one queued for 40 s look alike there).
-
 Queue and emissions
     The halting vehicles (below 0.1 m/s) on the incoming lanes at the decision; with ``emissions=True``
     the CO2 emitted on the incoming lanes (SUMO's ``lane.getCO2Emission``, mg per simulated second),
@@ -38,7 +29,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-from .topology import IntersectionLayout, vehicle_lane_capacity
+from .topology import IntersectionLayout
 
 
 class Measurement(NamedTuple):
@@ -69,8 +60,6 @@ class IntersectionMonitor:
     :param layout: incoming lanes and capacities of the intersection.
     :param step_length: simulated seconds per :meth:`track` call.
     :param emissions: also sum the CO2 emitted on the incoming lanes (one more SUMO call per lane and second).
-    :param approach_zone: length [m] of the stretch before each vehicle lane's stop line watched by
-        :meth:`approaching` (0: not watched).
     """
 
     def __init__(
@@ -79,7 +68,6 @@ class IntersectionMonitor:
         layout: IntersectionLayout,
         step_length: float = 1.0,
         emissions: bool = False,
-        approach_zone: float = 0.0,
     ) -> None:
         self.layout = layout
         self.step_length = step_length
@@ -94,16 +82,6 @@ class IntersectionMonitor:
         self._ped_edges = layout.pedestrian_edges
         self._veh_lanes = tuple(zip(layout.vehicle_lanes, (1.0 / c for c in layout.vehicle_capacity), strict=True))
         self._ped_inv_cap = tuple(1.0 / c for c in layout.pedestrian_capacity)
-        self._lane_vehicles = api.lane.getLastStepVehicleIDs
-        self._position = api.vehicle.getLanePosition
-        self._speed = api.vehicle.getSpeed
-        # per vehicle lane watched: the lane and where its approach zone starts [m from the lane's start]
-        self._zones = (
-            tuple((lane, max(0.0, api.lane.getLength(lane) - approach_zone)) for lane in layout.vehicle_lanes)
-            if approach_zone > 0
-            else ()
-        )
-        self._zone_inv_cap = 1.0 / vehicle_lane_capacity(approach_zone)
         self.reset()
 
     def reset(self) -> None:
@@ -206,30 +184,3 @@ class IntersectionMonitor:
             dens.append(min(1.0, len(ids) * inv))
             queue.append(min(1.0, n_wait * inv))
         return dens, queue
-
-    def approaching(self) -> list[float]:
-        """Moving vehicles in the approach zone of every incoming vehicle lane, divided by the zone's capacity and
-        clipped to 1 (empty without an ``approach_zone``).
-
-        :return: one number per lane of ``layout.vehicle_lanes``.
-        """
-        position, speed, inv = self._position, self._speed, self._zone_inv_cap
-        return [
-            min(1.0, sum(position(v) >= start and speed(v) >= 0.1 for v in self._lane_vehicles(lane)) * inv)
-            for lane, start in self._zones
-        ]
-
-    def longest_waits(self) -> list[float]:
-        """The longest waiting time [s] at this intersection among the vehicles, then the persons, on each incoming
-        lane (call after :meth:`track` of the current second; 0 for an empty lane).
-
-        :return: one number per lane of ``layout.vehicle_lanes``, then per pedestrian approach edge.
-        """
-        acc, offset = self._acc_wait, self._veh_offset
-        vehicles = [
-            max((acc(v) - offset[v] for v in self._lane_vehicles(lane) if v in offset), default=0.0)
-            for lane, _ in self._veh_lanes
-        ]
-        pacc = self._ped_acc
-        persons = [max((pacc.get(p, 0.0) for p in ids), default=0.0) for ids in self._ped_on]
-        return vehicles + persons

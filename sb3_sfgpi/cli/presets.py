@@ -42,21 +42,18 @@ class DomainPreset:
     :param n_test_weights: default number of Dirichlet(1) test weights of the GPI evaluation
     :param value_episodes: episodes of each value estimate
     :param eval_episodes: episodes per test weight of the GPI evaluation
-    :param value_mode: ``"joint"``, ``"shared"`` or ``"gpi"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
+    :param value_mode: ``"joint"`` or ``"shared"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
     :param gpi_set: ``"all"`` or ``"ccs"``
-    :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue, ``"top"``,
-        ``"spread"``, ``"same"`` or ``"same-after-extrema"`` (see :class:`~sb3_sfgpi.schedules.OLSSchedule`)
+    :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue, ``"top"`` or
+        ``"same-after-extrema"`` (see :class:`~sb3_sfgpi.schedules.OLSSchedule`)
     :param validation_weights: Dirichlet(1) validation weights deciding which new policies join Π (0: all join; see
-        :class:`~sb3_sfgpi.callbacks.PolicyValidation`)
+        :class:`~sb3_sfgpi.admission.Admission`)
     :param prune: also retire, after every iteration, the policies without which GPI does better on the validation
         weights (with ``validation_weights > 0``)
     :param admit_together: also try an iteration's policies left out by validation together (with
         ``validation_weights > 0``)
-    :param replan: plan every policy of Π again on the run's pooled experience after every iteration (tabular
-        learners; see :class:`~sb3_sfgpi.callbacks.OLSCallback`)
-    :param sharing: ``"independent"`` (one learner per agent), ``"experience"`` (one learner per agent that also
-        stores the transitions of the agents training for the same weights) or ``"shared"`` (one learner that every
-        agent acts with and feeds; see :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`)
+    :param sharing: ``"independent"`` (one learner per agent) or ``"shared"`` (one learner that every agent acts
+        with and feeds; see :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`)
     :param eval_workers: default number of evaluation processes
     :param objectives: the objectives' names, one per reward component
     :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions
@@ -82,7 +79,6 @@ class DomainPreset:
     validation_weights: int = 0
     prune: bool = False
     admit_together: bool = False
-    replan: bool = False
     sharing: str = "independent"
     eval_workers: int = 0
     objectives: list[str] | None = None
@@ -165,7 +161,7 @@ class DomainPreset:
             raise UsageError(f"domain {self.name!r}: ols_batch must be one of {OLS_BATCHES}, got {self.ols_batch!r}")
         if self.sharing not in SHARINGS:
             raise UsageError(f"domain {self.name!r}: sharing must be one of {SHARINGS}, got {self.sharing!r}")
-        for key in ("prune", "admit_together", "replan"):
+        for key in ("prune", "admit_together"):
             if not isinstance(getattr(self, key), bool):
                 raise UsageError(f"domain {self.name!r}: {key} must be true or false, got {getattr(self, key)!r}")
 

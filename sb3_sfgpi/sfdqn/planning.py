@@ -2,9 +2,9 @@
 
 The replay buffer of a tabular learner is an empirical model of its environment: for each state-action pair
 ``(s, a)`` it holds the next states seen, how often, and the rewards and terminations that came with them.
-:class:`Experience` counts each distinct ``(s, a, s')`` (experiences merge: several buffers pool into one), and
-:class:`EmpiricalModel` condenses that into one row per outcome with its empirical probability
-``P̂(s' | s, a)`` and mean reward and termination, and :meth:`EmpiricalModel.sweep` applies
+:class:`Experience` counts each distinct ``(s, a, s')``, and :class:`EmpiricalModel` condenses that into one row
+per outcome with its empirical probability ``P̂(s' | s, a)`` and mean reward and termination, and
+:meth:`EmpiricalModel.sweep` applies
 
 ``ψ(s, a) ← Σ_s' P̂(s' | s, a) · (r̄(s, a, s') + γ (1 − d̄(s, a, s')) ψ(s', a*(s')))``,  ``a*(s') = argmax_a w · ψ(s', a)``
 
@@ -16,7 +16,6 @@ In a deterministic environment the model is exact where it has been seen. Pairs 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,8 +52,8 @@ class EmpiricalModel:
         :data:`TOLERANCE`.
 
         The sweeps work on a contiguous copy of the rows they read or write (every action of the states recorded
-        and of their next states), written back at the end: the same arithmetic as on the table, 3.5 times as fast
-        as indexing the whole table at every sweep (``python -m benchmarks planning``).
+        and of their next states), written back at the end: the same arithmetic as on the table, without indexing
+        the whole table at every sweep (``python -m benchmarks planning``).
 
         :param table: ψ, one row per ``(state, action)``: shape ``(n_rows * n_actions, d)``
         :param weights: ``w``, shape ``(d,)``
@@ -99,9 +98,8 @@ class EmpiricalModel:
 class Experience:
     """
     Everything recorded, condensed: how often each distinct ``(s, a, s')`` was seen, with the sums of its
-    terminations and vector rewards. Unlike an :class:`EmpiricalModel` (probabilities and means), experiences add
-    up: :meth:`merge` pools the transitions of several replay buffers (learners, agents, iterations) into one, and
-    :meth:`model` condenses it for planning.
+    terminations and vector rewards; :meth:`model` condenses it into an :class:`EmpiricalModel` (probabilities
+    and means) for planning.
 
     :param keys: ``(s * n_actions + a) * n_rows * n_actions + s' * n_actions`` of each outcome, sorted and distinct,
         shape ``(O,)``
@@ -118,13 +116,6 @@ class Experience:
     rewards: np.ndarray
     n_rows: int
     n_actions: int
-
-    @classmethod
-    def empty(cls, n_rows: int, n_actions: int, reward_dim: int) -> Experience:
-        """Nothing recorded yet."""
-        return cls(
-            np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, reward_dim)), n_rows, n_actions
-        )
 
     @classmethod
     def from_transitions(
@@ -180,65 +171,6 @@ class Experience:
         """The number of transitions recorded."""
         return int(self.counts.sum())
 
-    def merge(self, other: Experience) -> Experience:
-        """
-        Both experiences pooled, as if their transitions had been recorded in one buffer.
-
-        :raises ValueError: experiences of tables of other shapes or reward dimensions
-        """
-        if (self.n_rows, self.n_actions, self.reward_dim) != (other.n_rows, other.n_actions, other.reward_dim):
-            raise ValueError(
-                f"cannot merge the experience of a table of {other.n_rows} states x {other.n_actions} actions x "
-                f"{other.reward_dim} objectives into one of {self.n_rows} x {self.n_actions} x {self.reward_dim}"
-            )
-        keys, outcome = np.unique(np.concatenate([self.keys, other.keys]), return_inverse=True)
-        counts = np.bincount(outcome, weights=np.concatenate([self.counts, other.counts]), minlength=len(keys))
-        return Experience._summed(
-            keys,
-            outcome,
-            counts,
-            np.concatenate([self.dones, other.dones]),
-            np.concatenate([self.rewards, other.rewards]),
-            self.n_rows,
-            self.n_actions,
-        )
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """The experience as plain arrays (what :meth:`from_arrays` reads back; for ``numpy.savez``)."""
-        sizes = np.array([self.n_rows, self.n_actions], dtype=np.int64)
-        return {"keys": self.keys, "counts": self.counts, "dones": self.dones, "rewards": self.rewards, "sizes": sizes}
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray], source: str = "experience") -> Experience:
-        """
-        The experience of :meth:`to_arrays`, checked.
-
-        :param source: what to name in errors (a file)
-        :raises ValueError: an array missing, of the wrong kind or shape, or values no recording gives
-        """
-        missing = sorted({"keys", "counts", "dones", "rewards", "sizes"} - set(arrays))
-        if missing:
-            raise ValueError(f"{source} lacks the arrays {missing}")
-        keys, counts, dones, rewards, sizes = (
-            np.asarray(arrays[name]) for name in ("keys", "counts", "dones", "rewards", "sizes")
-        )
-        if sizes.shape != (2,) or sizes.dtype.kind != "i" or (sizes < 1).any():
-            raise ValueError(f"{source}: 'sizes' must be two positive integers (states, actions), got {sizes!r}")
-        n_rows, n_actions = (int(size) for size in sizes)
-        n_entries = n_rows * n_actions
-        n = len(keys)
-        shapes_fit = keys.shape == counts.shape == dones.shape == (n,) and rewards.ndim == 2 and len(rewards) == n
-        if not shapes_fit or keys.dtype.kind != "i" or counts.dtype.kind != "i" or rewards.shape[1] < 1:
-            raise ValueError(f"{source}: keys, counts, dones and rewards must be arrays of one length (rewards: 2-D)")
-        if (np.diff(keys) <= 0).any() or (keys < 0).any() or (keys >= n_entries * n_entries).any():
-            raise ValueError(f"{source}: keys must be distinct, sorted and inside a table of {n_rows} x {n_actions}")
-        if (keys % n_actions).any() or (counts < 1).any():
-            raise ValueError(f"{source}: next states not at the start of a row, or outcomes never recorded")
-        if not (np.isfinite(dones).all() and np.isfinite(rewards).all()) or ((dones < 0) | (dones > counts)).any():
-            raise ValueError(f"{source}: terminations outside 0..count, or rewards that are not finite")
-        return cls(keys.astype(np.int64), counts.astype(np.int64), dones.astype(np.float64),
-                   rewards.astype(np.float64), n_rows, n_actions)  # fmt: skip
-
     def model(self) -> EmpiricalModel:
         """The empirical model of this experience: ``P̂(s' | s, a)``, mean rewards and terminations."""
         n_entries = self.n_rows * self.n_actions
@@ -275,15 +207,3 @@ def plan_table(
         untried[model.entries] = False
         table[untried] = untried_value
     return model.sweep(table, weights, gamma, max_sweeps) if len(model.entries) else 0
-
-
-def plan_afresh(table: np.ndarray, model: EmpiricalModel, weights: np.ndarray, gamma: float, max_sweeps: int) -> int:
-    """
-    Value iteration from scratch: every entry of ``table`` set to 0, then :meth:`EmpiricalModel.sweep`. The result
-    depends on the model and the weights alone, not on what the table held.
-
-    :param table: ψ, one row per ``(state, action)``, overwritten: shape ``(n_rows * n_actions, d)``
-    :return: the number of sweeps done
-    """
-    table.fill(0.0)
-    return plan_table(table, model, weights, gamma, max_sweeps)

@@ -24,7 +24,7 @@ from sb3_sfgpi.sfdqn.networks import (
     greedy_entries,
     scalarize,
 )
-from sb3_sfgpi.sfdqn.planning import EmpiricalModel, Experience, plan_afresh, plan_table
+from sb3_sfgpi.sfdqn.planning import Experience, plan_table
 
 
 class SFDQNPolicy(BasePolicy):
@@ -349,15 +349,6 @@ class TabularPolicy(SFDQNPolicy):
         return self._planned(
             plan_table(self.sf_net.entries(), model, self.weights.numpy(), gamma, max_sweeps, untried_value)
         )
-
-    def plan_afresh(self, model: EmpiricalModel, gamma: float, max_sweeps: int) -> int:
-        """
-        Value iteration from ``ψ = 0`` on ``model`` (e.g. of an :class:`Experience` pooled from several buffers; see
-        :func:`~sb3_sfgpi.sfdqn.planning.plan_afresh`); a separate target table is then set to the result.
-
-        :return: the number of sweeps done
-        """
-        return self._planned(plan_afresh(self.sf_net.entries(), model, self.weights.numpy(), gamma, max_sweeps))
 
     def _planned(self, sweeps: int) -> int:
         """After planning: the target table (if separate) set to the planned one; ``sweeps`` passed on."""

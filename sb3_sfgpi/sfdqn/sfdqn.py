@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import math
 import numbers
-from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
@@ -25,9 +25,6 @@ from sb3_sfgpi.common.vec_env import vec_env_reward_dim, wrap_mo_env
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
-
-if TYPE_CHECKING:
-    from sb3_sfgpi.gpi import GPIPolicy
 
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 
@@ -129,12 +126,11 @@ class SFDQN(OffPolicyAlgorithm):
         planning carries their promise to the states that lead to them (directed exploration, as R-max). At the end
         of :meth:`learn`, :meth:`settle` removes it: the pairs never tried get 0 and the table is planned until it
         converges, so the trained policy never counts on an action it has not tried. Pick a value of the order of the
-        values the task gives: the higher, the more of the state space is explored (on ``four-room-v0``, whose
-        optimal values are 1.1–1.8, 1.25 did better than 1.5 and 2)
+        values the task gives: the higher, the more of the state space is explored (docs: experiments/single_agent)
     :param stats_window_size: Window size for the rollout logging
     :param tensorboard_log: The log location for tensorboard (if None, no logging)
     :param policy_kwargs: Additional arguments to be passed to the policy on creation (``MlpPolicy``: ``net_arch``,
-        ``activation_fn``, ``n_critics``, ...; ``n_critics=2``: two heads, ``ψ`` their element-wise minimum)
+        ``activation_fn``, ...)
     :param verbose: Verbosity level: 0 for no output, 1 for info messages, 2 for debug messages
     :param seed: Seed for the pseudo random generators
     :param device: Device (cpu, cuda, ...) on which the code should be run. ``"auto"``: the CPU for
@@ -234,8 +230,6 @@ class SFDQN(OffPolicyAlgorithm):
         self.optimistic_init = float(optimistic_init)
         self._plannings = 0  # plannings done: one each time num_timesteps passes a multiple of planning_interval
         self.exploration_rate = 0.0
-        self.behaviour_set: GPIPolicy | None = None
-        """Policies the behaviour policy acts by GPI over together with this one (SFOLS's behaviour); None: alone."""
         if self.env is not None:
             self.reward_dim = vec_env_reward_dim(self.env)
             self._weights = validate_weights(
@@ -341,7 +335,6 @@ class SFDQN(OffPolicyAlgorithm):
         The greedy choice of the ε-greedy (behaviour) policy breaks ties between actions of equal value at random:
         a tabular policy ties in every state it has not learned yet, and taking the first action there would
         explore nothing. The deterministic policy, whose successor features are learned, takes the first.
-        With a :attr:`behaviour_set` (SFOLS's behaviour), the greedy choice is GPI's over the set and this policy.
 
         :param observation: the input observation (one or a batch)
         :param state: unused (no recurrent policy), returned as is
@@ -363,18 +356,11 @@ class SFDQN(OffPolicyAlgorithm):
         if explore.all():
             actions = np.array([self.action_space.sample() for _ in range(n_batch)])
         else:
-            actions = self._behaviour_greedy(observation, weights)
+            q_values, _ = self.policy.q_values(observation, weights)
+            actions = argmax_random_ties(q_values)
             for i in np.flatnonzero(explore):
                 actions[i] = self.action_space.sample()
         return (actions if vectorized else actions[0]), state
-
-    def _behaviour_greedy(self, observation: np.ndarray | dict[str, np.ndarray], weights: np.ndarray) -> np.ndarray:
-        """The greedy choice of the behaviour policy: ``argmax_a w · ψ(s, a)``, or with a :attr:`behaviour_set`
-        ``argmax_a max(w · ψ(s, a), max_π w · ψπ(s, a))`` (GPI over the set and this policy); ties at random."""
-        q_values, _ = self.policy.q_values(observation, weights)
-        if self.behaviour_set is not None:
-            q_values = np.maximum(q_values, self.behaviour_set.q_values(observation, weights))
-        return argmax_random_ties(q_values)
 
     def _store_transition(
         self,
@@ -453,7 +439,7 @@ class SFDQN(OffPolicyAlgorithm):
             self.policy.plan(self.replay_buffer, self.gamma, SETTLE_SWEEPS, untried_value=0.0)  # type: ignore[attr-defined]
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "exploration_schedule", "behaviour_set"]
+        return [*super()._excluded_save_params(), "exploration_schedule"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []
