@@ -162,6 +162,10 @@ def run(args: argparse.Namespace) -> int:
     preset = load_domain(args.domain)
     config = _run_config(args, preset)
     run_dir = RunDirectory(args.out or Path("runs") / _default_name(args, config))
+    if not args.resume:  # a folder that is not a run of these settings is refused untouched
+        run_dir.check_new_run({key: config[key] for key in ("domain", "algorithm", "seed", "weights", "env_kwargs")})
+    new_directory = not run_dir.path.exists()
+    lock = run_dir.lock(f"sb3-sfgpi train {args.domain} --seed {args.seed}{' --resume' * args.resume}")  # one writer
     if args.resume:
         config = _resumed_config(args, run_dir, config)
     elif run_dir.has_checkpoint():
@@ -174,11 +178,11 @@ def run(args: argparse.Namespace) -> int:
     import torch as th
 
     th.set_num_threads(args.torch_threads)
-    new_directory = not run_dir.path.exists()
     try:
         model = _model(args, preset, preset.build_env(config["env_kwargs"]), _created(run_dir), config)
     except ValueError:  # refused settings: leave no empty run directory behind
         if new_directory:
+            lock.discard()
             with suppress(OSError):
                 run_dir.path.rmdir()
         raise
@@ -189,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
         raise TrainingStopped(_stopped_message(args, run_dir, model, error)) from error
     finally:
         model.close()
+        lock.release()
     _print_result(run_dir, model)
     return 0
 
@@ -393,7 +398,7 @@ def _stopped_message(args: argparse.Namespace, run_dir: RunDirectory, model: MAS
     reason = " ".join(reason.split())  # one line
     weights = model.settings["weights"]
     return (
-        f"training stopped in iteration {model.callback.iteration + 1} ({reason}). The checkpoint of the last finished "
+        f"training stopped in iteration {done + 1} ({reason}). The checkpoint of the last finished "
         f"iteration ({done} done) in {run_dir} is intact: continue with "
         f"`sb3-sfgpi train {args.domain} --algo {args.algo} --seed {args.seed} --out {run_dir} --resume"
         + ("" if args.iterations is None else f" --iterations {args.iterations}")
