@@ -43,6 +43,7 @@ from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
 from sb3_sfgpi.multiagent import SHARINGS
 from sb3_sfgpi.sfdqn.planning import Experience
+from sb3_sfgpi.trust import check_learner_kwargs
 
 #: The columns of ``evaluation.csv``, in order.
 SUMMARY_FIELDS = (
@@ -319,6 +320,7 @@ class RunDirectory:
         for key, value in config.items():
             if key in _SETTING_KINDS and not _SETTING_KINDS[key](value):
                 raise ValueError(f"run description {path}: {key!r} has a value of the wrong kind: {value!r}")
+        check_learner_kwargs(config.get("learner_kwargs", {}), f"run description {path}")  # an allow-list
         return config
 
     def write_config(self, config: dict[str, Any]) -> None:

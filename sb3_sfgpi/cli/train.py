@@ -167,7 +167,9 @@ def run(args: argparse.Namespace) -> int:
     new_directory = not run_dir.path.exists()
     lock = run_dir.lock(f"sb3-sfgpi train {args.domain} --seed {args.seed}{' --resume' * args.resume}")  # one writer
     if args.resume:
+        vouched = config["env_kwargs"]  # the preset's and --env's: not from the run file
         config = _resumed_config(args, run_dir, config)
+        preset.run_file_env(config["env_kwargs"], run_dir, vouched)
     elif run_dir.has_checkpoint():
         raise UsageError(f"{run_dir} already holds a run: pass --resume to continue it or choose another --out")
     eval_workers = preset.eval_workers if args.eval_workers is None else args.eval_workers
