@@ -102,6 +102,8 @@ def check_options(options: Any) -> None:
     reserved = sorted({r for r in RESERVED_OPTIONS for n in names if r.startswith(n)})
     if reserved:
         raise ValueError(f"options may not set {reserved} (nor abbreviate them): the sweep sets them")
+    if {"-h", "--help"} & names | {"-h"} & set(options):
+        raise ValueError("options may not ask for --help: a run would print it and count as finished")
 
 
 def check_run_name(name: Any) -> None:

@@ -52,6 +52,9 @@ def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
     :raises ValueError: naming the argument
     """
     refuse_unlisted(kwargs, LEARNER_ARGUMENTS, f"{source}: learner argument", "the learners")
+    gamma = kwargs.get("gamma", 0.99)  # read as it is by evaluate and compare
+    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0.0 <= gamma <= 1.0:
+        raise ValueError(f"{source}: learner argument 'gamma' must be a number in [0, 1], got {gamma!r}")
     policy_kwargs = kwargs.get("policy_kwargs", {})
     if not isinstance(policy_kwargs, dict):
         raise ValueError(f"{source}: learner argument 'policy_kwargs' must be an object, got {policy_kwargs!r}")

@@ -105,7 +105,8 @@ def test_train_into_a_folder_that_is_not_a_run_of_the_same_settings_is_refused_u
         capture_output=True,
         text=True,
     )
-    assert other_seed.returncode == 2 and "not a run of these settings" in other_seed.stderr
+    assert other_seed.returncode == 2 and "already holds a run: pass --resume" in other_seed.stderr
+    assert json.loads((finished_run / "run.json").read_text())["seed"] == 0
 
 
 def test_a_run_of_the_same_settings_killed_before_its_first_checkpoint_may_be_trained_again(finished_run):
@@ -114,3 +115,14 @@ def test_a_run_of_the_same_settings_killed_before_its_first_checkpoint_may_be_tr
     RunDirectory(finished_run).check_new_run(same)  # train then refuses it only for its checkpoint (--resume)
     with pytest.raises(ValueError, match="not a run of these settings"):
         RunDirectory(finished_run).check_new_run({**same, "seed": 1})
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["--env", "nosuchkey=1"], ["--learner", "bogus=1"], ["--eval-workers", "-1"], ["--resume"]],
+    ids=["env", "learner", "workers", "resume-nothing"],
+)
+def test_a_refused_train_leaves_no_directory_behind(tmp_path, argv):
+    out = tmp_path / "new"
+    assert main([*TRAIN, "--no-progress", "--out", str(out), *argv]) == 2
+    assert not out.exists()

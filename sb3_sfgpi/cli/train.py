@@ -162,10 +162,6 @@ def run(args: argparse.Namespace) -> int:
     preset = load_domain(args.domain)
     config = _run_config(args, preset)
     run_dir = RunDirectory(args.out or Path("runs") / _default_name(args, config))
-    if not args.resume:  # a folder that is not a run of these settings is refused untouched
-        run_dir.check_new_run({key: config[key] for key in ("domain", "algorithm", "seed", "weights", "env_kwargs")})
-    new_directory = not run_dir.path.exists()
-    lock = run_dir.lock(f"sb3-sfgpi train {args.domain} --seed {args.seed}{' --resume' * args.resume}")  # one writer
     if args.resume:
         vouched = config["env_kwargs"]  # the preset's and --env's: not from the run file
         config = _resumed_config(args, run_dir, config)
@@ -180,9 +176,13 @@ def run(args: argparse.Namespace) -> int:
     import torch as th
 
     th.set_num_threads(args.torch_threads)
+    if not args.resume:  # a folder that is not a run of these settings is refused untouched
+        run_dir.check_new_run({key: config[key] for key in ("domain", "algorithm", "seed", "weights", "env_kwargs")})
+    new_directory = not run_dir.path.exists()
+    lock = _created(run_dir).lock(f"sb3-sfgpi train {args.domain} --seed {args.seed} --out {run_dir}")  # one writer
     try:
         model = _model(args, preset, preset.build_env(config["env_kwargs"]), _created(run_dir), config)
-    except ValueError:  # refused settings: leave no empty run directory behind
+    except (ValueError, UsageError):  # refused settings: leave no empty run directory behind
         if new_directory:
             lock.discard()
             with suppress(OSError):
