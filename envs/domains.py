@@ -57,6 +57,8 @@ def four_room() -> dict[str, Any]:
         "admit_together": True,  # an iteration's policies left out one by one are tried together
         "sharing": "independent",  # the paper's decentralised learners, one per agent
         "objectives": ["blue squares", "green triangles", "red circles"],  # objects collected, one reward each
+        # what a run directory's run.json may set (sb3_sfgpi.trust): all but render_mode
+        "run_file_env_kwargs": ["starts", "goal_reward", "max_steps", "observation_mode"],
         "value_episodes": 1,
         "eval_episodes": 1,
     }
@@ -146,4 +148,24 @@ def traffic() -> dict[str, Any]:
         ],
         "compare_weights": [[1.0, 0.0], [0.8, 0.2], [0.6, 0.4], [0.5, 0.5], [0.4, 0.6], [0.2, 0.8], [0.0, 1.0]],
         "fixed_weights": [[0.5, 0.5], [0.4, 0.6], [0.2, 0.8]],
+        # what a run directory's run.json may set (sb3_sfgpi.trust): files SUMO only reads and numbers; never sumo_args,
+        # additional or actuated files (SUMO writes the outputs they name), gui or render_mode (run sumo-gui)
+        "run_file_env_kwargs": [
+            "net_file",
+            "route_file",
+            "num_seconds",
+            "begin_time",
+            "delta_time",
+            "yellow_time",
+            "min_green",
+            "max_green",
+            "early_change",
+            "objectives",
+            "action_mode",
+            "signal_control",
+            "backend",
+            "seed",
+            "sumo_warnings",
+            "reward_scale",
+        ],
     }

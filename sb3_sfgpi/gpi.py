@@ -362,6 +362,8 @@ class GPIPolicy:
 
         The last weights are remembered, so acting many times for one ``w`` validates it once.
         """
+        if isinstance(w, th.Tensor):  # one that requires grad too
+            w = w.detach().cpu().numpy()
         try:
             raw = np.asarray(w, dtype=np.float64)
         except (TypeError, ValueError):
@@ -436,6 +438,7 @@ class GPIPolicy:
 
         :param path: the directory (created if needed)
         """
+        self._check_saveable()
         directory = Path(path)
         directory.mkdir(parents=True, exist_ok=True)
         entries = []
@@ -460,6 +463,18 @@ class GPIPolicy:
             },
         )
 
+    def _check_saveable(self) -> None:
+        """Refuse to save what :meth:`load` would refuse: non-finite SFs, values or weights, or an empty set."""
+        self._first()
+        for index, (net, info) in enumerate(zip(self.networks, self.infos, strict=True)):
+            name = f"policy {index} (agent {info.agent!r}, iteration {info.iteration})"
+            for key, value in file_state(net).items():
+                if value.is_floating_point() and not bool(th.isfinite(value).all()):
+                    raise ValueError(f"cannot save {name}: its network holds NaN or inf in {key!r}")
+            for what, array in (("value", info.value), ("weights", info.weights)):
+                if array is not None and not np.isfinite(np.asarray(array, dtype=np.float64)).all():
+                    raise ValueError(f"cannot save {name}: its {what} is not finite")
+
     @classmethod
     def load(cls, path: str | Path, device: th.device | str = "cpu", retired: bool = False) -> GPIPolicy:
         """
@@ -478,7 +493,7 @@ class GPIPolicy:
             manifest = read_json(directory / MANIFEST, "policy-set manifest")
             if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
                 raise ValueError(f"{directory / MANIFEST} is not an sb3-sfgpi policy-set manifest")
-            if manifest.get("version") != VERSION:
+            if type(manifest.get("version")) is not int or manifest["version"] != VERSION:  # not true, not 1.0
                 raise ValueError(f"unsupported policy-set version {manifest.get('version')!r} (expected {VERSION})")
             reward_dim = int(manifest["reward_dim"])
             observation_space = space_from_dict(manifest["observation_space"])

@@ -24,6 +24,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from tqdm.auto import tqdm
 
 from sb3_sfgpi.common.agent_views import AgentVecEnv, folderless_logger, remove_interrupted_logs
+from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
 from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import flattened, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
@@ -281,6 +282,7 @@ class MultiAgentRunner:
         seeds = [seed if seed is None or copy == 0 else derive_seed(seed, "copy", copy) for copy in copies]
         observations = {}
         for copy, (obs, agents) in zip(copies, self.copies.reset(seeds, copies), strict=True):
+            check_parallel_reset(self.env, copy, obs, self.agents)  # known agents, finite observations
             self._live[copy], self._episode_steps[copy] = set(agents), 0
             observations.update({(copy, agent): obs[agent] for agent in obs})
         for name, slots in self.slots.items():
@@ -315,6 +317,7 @@ class MultiAgentRunner:
         self.num_timesteps += 1
         merged: list[dict] = [{}, {}, {}, {}, {}]  # observations, rewards, terminations, truncations, infos
         for copy, (*returned, agents) in enumerate(results):
+            check_parallel_step(self.env, copy, actions[copy], returned, agents, self.num_timesteps)  # before storing
             self._episode_steps[copy] += 1
             self._live[copy] = set(agents)
             self._check_truncations(copy, returned[2], returned[3])

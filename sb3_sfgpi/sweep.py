@@ -17,6 +17,7 @@ import datetime
 import json
 import os
 import socket
+import unicodedata
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -61,11 +62,10 @@ class RunSpec:
             raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
         if (self.algo == "fixed") != (self.w is not None):
             raise ValueError(f"weights w are for algo 'fixed' and it needs them (run {self.run_name!r})")
-        reserved = {"--algo", "--seed", "--w", "--out", "--resume"} & {o.partition("=")[0] for o in self.options}
-        if reserved:
-            raise ValueError(f"options may not set {sorted(reserved)}: the sweep sets them")
+        check_options(self.options)
         object.__setattr__(self, "w", None if self.w is None else tuple(float(x) for x in self.w))
-        object.__setattr__(self, "options", tuple(str(o) for o in self.options))
+        object.__setattr__(self, "options", tuple(self.options))
+        check_run_name(self.run_name)
 
     @property
     def run_name(self) -> str:
@@ -85,9 +85,57 @@ class RunSpec:
         return {**asdict(self), "w": None if self.w is None else list(self.w), "options": list(self.options)}
 
 
+#: The ``train`` options a sweep sets itself (a run's options may not set them, nor abbreviate them).
+RESERVED_OPTIONS = ("--algo", "--seed", "--w", "--out", "--resume")
+
+
+def check_options(options: Any) -> None:
+    """
+    Refuse a run's ``train`` options unless they are a list of strings that set none of :data:`RESERVED_OPTIONS`,
+    written out or abbreviated (``--se``; ``train`` refuses abbreviations, but a spec is refused before it runs).
+
+    :raises ValueError: naming the problem
+    """
+    if not isinstance(options, (list, tuple)) or not all(isinstance(o, str) for o in options):
+        raise ValueError(f'options must be a list of strings, e.g. ["--iterations", "3"], got {options!r}')
+    names = {o.partition("=")[0] for o in options if o.startswith("--") and len(o.partition("=")[0]) > 2}
+    reserved = sorted({r for r in RESERVED_OPTIONS for n in names if r.startswith(n)})
+    if reserved:
+        raise ValueError(f"options may not set {reserved} (nor abbreviate them): the sweep sets them")
+    if {"-h", "--help"} & names | {"-h"} & set(options):
+        raise ValueError("options may not ask for --help: a run would print it and count as finished")
+
+
+def check_run_name(name: Any) -> None:
+    """
+    Refuse a run name that is not one path component: a run's directory is ``out/<name>``, never outside ``out``.
+
+    :raises ValueError: naming the problem
+    """
+    if (
+        not isinstance(name, str)
+        or name in ("", ".", "..")
+        or any(c in name for c in "/\\\0")
+        or len(name.encode(errors="replace")) > 200
+        or not name.isprintable()
+    ):
+        raise ValueError(
+            f"a run name must be one printable path component (no '/', '\\', '.' or '..', at most 200 bytes), "
+            f"got {name!r}"
+        )
+
+
+def _normalised(name: str) -> str:
+    """The name as file systems may compare it (Unicode NFC, case folded): two runs must differ in it."""
+    return unicodedata.normalize("NFC", name).casefold()
+
+
 @dataclass
 class RunOutcome:
-    """How a run of a sweep ended: ``finished`` (now or before: ``skipped``) or ``failed`` with its error."""
+    """
+    How a run of a sweep ended: ``finished`` (now or before: ``skipped``), ``failed`` with its error, or
+    ``interrupted`` (the sweep was stopped by Ctrl-C before the run ended; running the sweep again continues it).
+    """
 
     spec: RunSpec
     run_dir: Path
@@ -137,14 +185,21 @@ def read_spec(path: str | Path) -> list[RunSpec]:
     try:
         if "runs" in data:
             return [
-                RunSpec(**{**run, "w": run.get("w"), "options": tuple(run.get("options", ()))}) for run in data["runs"]
+                RunSpec(**{**run, "w": run.get("w"), "options": run.get("options", ())}) for run in _runs(data["runs"])
             ]
         unknown = set(data) - {"domains", "algos", "seeds", "weights", "options"}
         if unknown:
             raise ValueError(f"unknown keys {sorted(unknown)}")
+        check_options(data.get("options", ()))
         return grid(data["domains"], data["algos"], data["seeds"], data.get("weights", ()), data.get("options", ()))
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"sweep file {path}: {error}") from error
+
+
+def _runs(runs: Any) -> list[dict[str, Any]]:
+    if not isinstance(runs, list) or not all(isinstance(run, dict) for run in runs):
+        raise ValueError("'runs' must be a list of objects")
+    return runs
 
 
 def train_run(spec: RunSpec, run_dir: Path) -> RunOutcome:
@@ -154,9 +209,13 @@ def train_run(spec: RunSpec, run_dir: Path) -> RunOutcome:
     :raises RuntimeError: the run stopped with an error (the task is retried and continues from the checkpoint)
     :raises ValueError: the run's arguments are refused (not retried)
     """
+    with RunDirectory(run_dir).lock(f"sb3-sfgpi sweep run {spec.run_name}"):  # one writer: sweep.json, train.log
+        return _train_run(spec, run_dir)
+
+
+def _train_run(spec: RunSpec, run_dir: Path) -> RunOutcome:
     from sb3_sfgpi.cli import main
 
-    run_dir.mkdir(parents=True, exist_ok=True)
     record = _read_record(run_dir)
     attempt = {"pid": os.getpid(), "host": socket.gethostname(), "started": _now()}
     record = {"spec": spec.to_json(), "attempts": [*record.get("attempts", []), attempt], "finished": False}
@@ -164,7 +223,10 @@ def train_run(spec: RunSpec, run_dir: Path) -> RunOutcome:
     argv = spec.train_argv(run_dir, resume=RunDirectory(run_dir).has_checkpoint())
     with open(run_dir / "train.log", "a") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
         print(f"--- attempt {len(record['attempts'])}: sb3-sfgpi {' '.join(argv)}", flush=True)
-        code = main(argv)
+        try:
+            code = main(argv)
+        except SystemExit as error:  # argparse refused an option: a refused run, not a dead worker to retry
+            code = error.code if isinstance(error.code, int) else 2
     if code == 2:
         raise ValueError(f"{spec.run_name}: train refused its arguments (see {run_dir / 'train.log'})")
     if code != 0:
@@ -198,10 +260,10 @@ def run_sweep(
     """
     specs, out = list(specs), Path(out).resolve()  # the workers' directory may not be this process's
     names = [spec.run_name for spec in specs]
-    if len(set(names)) != len(names):
-        raise ValueError(
-            f"two runs of the sweep have the same name: {sorted({n for n in names if names.count(n) > 1})}"
-        )
+    normalised = [_normalised(name) for name in names]
+    if len(set(normalised)) != len(names):
+        same = sorted({n for n, key in zip(names, normalised, strict=True) if normalised.count(key) > 1})
+        raise ValueError(f"two runs of the sweep have the same name: {same}")
     outcomes: dict[str, RunOutcome] = {
         spec.run_name: _outcome(spec, out / spec.run_name, "skipped") for spec in specs if _finished(spec, out)
     }
@@ -212,13 +274,30 @@ def run_sweep(
         cpus = min(cpus_per_run, ray.cluster_resources().get("CPU", cpus_per_run))
         task = ray.remote(train_run).options(num_cpus=cpus, max_retries=max_retries, retry_exceptions=[RuntimeError])
         refs = {task.remote(spec, out / spec.run_name): spec for spec in pending}
-        while refs:
-            (ready,), _ = ray.wait(list(refs), num_returns=1)
-            spec = refs.pop(ready)
-            outcomes[spec.run_name] = _collect(ray, ready, spec, out / spec.run_name)
-            bar.update(1)
+        try:
+            while refs:
+                (ready,), _ = ray.wait(list(refs), num_returns=1)
+                spec = refs.pop(ready)
+                outcomes[spec.run_name] = _collect(ray, ready, spec, out / spec.run_name)
+                bar.update(1)
+        except KeyboardInterrupt:  # Ctrl-C: the runs stop (their checkpoints stay); the outcomes so far are returned
+            _interrupted(ray, refs, outcomes, out)
     bar.close()
     return [outcomes[name] for name in names]
+
+
+def _interrupted(ray: Any, refs: dict[Any, RunSpec], outcomes: dict[str, RunOutcome], out: Path) -> None:
+    """Cancel the runs not ended yet and record them as ``interrupted``."""
+    for ref in refs:
+        with contextlib.suppress(Exception):
+            ray.cancel(ref)
+    with contextlib.suppress(Exception):  # the runs stop at once; their errors are taken, not reported by Ray
+        ready, _ = ray.wait(list(refs), num_returns=len(refs), timeout=30)
+        for ref in ready:
+            with contextlib.suppress(Exception):
+                ray.get(ref)
+    for spec in refs.values():
+        outcomes[spec.run_name] = _outcome(spec, out / spec.run_name, "interrupted")
 
 
 def _ray(address: str | None, num_cpus: int | None) -> Any:

@@ -45,7 +45,7 @@ from pettingzoo import ParallelEnv
 
 from .monitor import IntersectionMonitor, Measurement
 from .objectives import DEFAULT_OBJECTIVES, reward_scales, select_objectives
-from .scenario import NET_FILE, ROUTE_FILE, trim_demand, write_actuated_programs
+from .scenario import NET_FILE, ROUTE_FILE, trim_demand, warn_if_no_demand, write_actuated_programs
 from .signals import SignalController, SignalProgram, is_green
 from .sumo_backend import SumoSimulation
 from .topology import IntersectionLayout, read_network
@@ -246,6 +246,7 @@ class TrafficSignalEnv(ParallelEnv):
         self.route_file = Path(route_file).resolve()
         if not self.route_file.is_file():
             raise FileNotFoundError(f"route file {self.route_file} does not exist")
+        warn_if_no_demand(self.route_file)
         extra = [Path(f).resolve() for f in additional_files]
         self.actuated_file = None if actuated_file is None else Path(actuated_file).resolve()
         if self.signal_control == "actuated" and self.actuated_file is not None:

@@ -14,6 +14,7 @@ whose flows end with the episode.
 from __future__ import annotations
 
 import os
+import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
 from pathlib import Path
@@ -31,6 +32,22 @@ ROUTE_FILE = NETS_DIR / "three_junctions.rou.xml"
 """Demand: vehicle flows HO1-HO3 (every 3.3 s), VO1 (every 20 s), one pedestrian per second VO1 -> VD1."""
 
 _FLOW_TAGS = frozenset({"flow", "personFlow", "containerFlow"})
+_DEMAND_TAGS = frozenset({"vehicle", "trip", "person", "container", *_FLOW_TAGS})
+
+
+def warn_if_no_demand(route_file: str | os.PathLike[str]) -> None:
+    """Warn where a route file holds no vehicle, trip, person or flow (e.g. a network file passed as routes): the
+    episodes would run with every reward 0. Files that are not XML are left to :func:`trim_demand` to refuse."""
+    try:
+        root = ET.parse(route_file).getroot()
+    except (ET.ParseError, OSError):
+        return
+    if not any(element.tag in _DEMAND_TAGS for element in root.iter()):
+        kind = " (its root is <net>: a network file?)" if root.tag == "net" else ""
+        warnings.warn(
+            f"route file {route_file} holds no vehicle, trip, person or flow{kind}: no traffic, every reward is 0",
+            stacklevel=3,
+        )
 
 
 def trim_demand(route_file: str | os.PathLike[str], end: float, directory: str | os.PathLike[str]) -> Path:

@@ -26,6 +26,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     sub = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS.values():
         command.add_parser(sub)
+    for command_parser in sub.choices.values():
+        command_parser.allow_abbrev = False  # --se is not --seed: a sweep's reserved options cannot be abbreviated
     return parser.parse_args(argv)
 
 

@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     if config.get("algorithm") == "fixed":
         raise UsageError(f"{args.run_dir} is a fixed-weight run: pass it with --fixed, after an MA-SFOLS run")
     preset = load_domain(config["domain"])
-    preset.build_env(config["env_kwargs"]).close()  # a damaged run.json: one line here, not in a worker
+    env_kwargs = preset.run_file_env(config["env_kwargs"], run_dir)  # an allow-list: run files come from elsewhere
+    preset.build_env(env_kwargs).close()  # a damaged run.json: one line here, not in a worker
     if args.episodes < 1:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
     if args.seed < 0:
@@ -108,6 +109,7 @@ def _fixed_runs(
     for path in args.fixed:
         fixed = RunDirectory(path)
         fixed_config = fixed.read_config(required=CLI_SETTINGS)
+        preset.run_file_env(fixed_config["env_kwargs"], fixed)
         if fixed_config.get("algorithm") != "fixed" or fixed_config.get("domain") != config["domain"]:
             raise UsageError(f"--fixed {path} is not a fixed-weight run of {config['domain']}")
         if not preset.same_env(fixed_config["env_kwargs"], config["env_kwargs"]):

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise UsageError(f"--seed must be 0 or more (the environment's reset seed), got {args.seed}")
     preset = load_domain(config["domain"])
-    env = preset.build_env(config["env_kwargs"])
+    env = preset.build_env(preset.run_file_env(config["env_kwargs"], run_dir))
     gamma = config["learner_kwargs"].get("gamma", 0.99)
     print(f"GPI over {len(policy_set)} policies ({which}), {args.episodes} episode(s) per weight")
     try:

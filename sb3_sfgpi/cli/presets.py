@@ -17,6 +17,7 @@ from typing import Any
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.multiagent import SHARINGS
 from sb3_sfgpi.schedules import OLS_BATCHES
+from sb3_sfgpi.trust import refuse_unlisted
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
 #: What each entry of ``--w`` weighs in the shipped domains (``--help``).
@@ -62,6 +63,8 @@ class DomainPreset:
     :param step_metrics: ``[info key, label]`` pairs of the per-step infos, summed over agents
     :param compare_weights: the weights ``compare`` evaluates GPI at by default
     :param fixed_weights: the weights of the a priori scalarised reference runs
+    :param run_file_env_kwargs: the env arguments a run directory's ``run.json`` may set (an allow-list: none that
+        makes the env write files or run programs; default: the keys of ``env_kwargs``; see :mod:`sb3_sfgpi.trust`)
     """
 
     name: str
@@ -87,6 +90,7 @@ class DomainPreset:
     step_metrics: list[list[str]] = field(default_factory=list)
     compare_weights: list[list[float]] = field(default_factory=list)
     fixed_weights: list[list[float]] = field(default_factory=list)
+    run_file_env_kwargs: list[str] | None = None
 
     @classmethod
     def from_dict(cls, name: str, data: Any) -> DomainPreset:
@@ -118,6 +122,23 @@ class DomainPreset:
             return self.make_env(**env_kwargs)
         except (TypeError, ValueError, FileNotFoundError) as error:
             raise UsageError(f"the {self.name} env refuses {env_kwargs}: {error}") from error
+
+    def run_file_env(self, env_kwargs: dict[str, Any], source: Any, vouched: dict[str, Any] | None = None) -> dict:
+        """
+        The env arguments of a run file, every one on the domain's allow-list (``run_file_env_kwargs``) or
+        ``vouched`` for (given on this command line with the same value).
+
+        :param source: the run directory, named in the error
+        :raises UsageError: an argument the domain does not take from a run file
+        """
+        allowed = self.env_kwargs.keys() if self.run_file_env_kwargs is None else self.run_file_env_kwargs
+        vouched = vouched or {}
+        unvouched = {key: value for key, value in env_kwargs.items() if key not in vouched or vouched[key] != value}
+        try:
+            refuse_unlisted(unvouched, allowed, f"{source}/run.json: env argument", f"the {self.name} env")
+        except ValueError as error:
+            raise UsageError(str(error)) from None
+        return env_kwargs
 
     def same_env(self, env_kwargs: dict[str, Any], other: dict[str, Any]) -> bool:
         """

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from sb3_sfgpi.cli.errors import UsageError
+from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
 from sb3_sfgpi.cli.presets import WEIGHT_HELP
 from sb3_sfgpi.sweep import ALGORITHMS, RunOutcome, grid, read_spec, run_sweep
 
@@ -59,6 +59,12 @@ def run(args: argparse.Namespace) -> int:
         specs, args.out, args.address, args.num_cpus, args.cpus_per_run, args.max_retries, not args.no_progress
     )
     print(_table(outcomes))
+    interrupted = sum(outcome.status == "interrupted" for outcome in outcomes)
+    if interrupted:
+        raise TrainingStopped(
+            f"interrupted: {interrupted} run(s) did not end (their checkpoints are intact); run the same sweep again "
+            "to continue them (finished runs are skipped)"
+        )
     return 1 if any(outcome.status == "failed" for outcome in outcomes) else 0
 
 

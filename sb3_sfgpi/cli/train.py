@@ -78,18 +78,24 @@ def run(args: argparse.Namespace) -> int:
     config, given = _run_config(args, preset)
     run_dir = RunDirectory(args.out or Path("runs") / _default_name(args, config))
     if args.resume:
+        vouched = config["env_kwargs"]  # the preset's and --env's: not from the run file
         config = _resumed_config(args, run_dir, config, given)
+        preset.run_file_env(config["env_kwargs"], run_dir, vouched)
     elif run_dir.has_checkpoint():
         raise UsageError(f"{run_dir} already holds a run: pass --resume to continue it or choose another --out")
 
     import torch as th
 
     th.set_num_threads(1)  # small networks: more threads only contend with the simulator and the evaluation workers
+    if not args.resume:  # a folder that is not a run of these settings is refused untouched
+        run_dir.check_new_run({key: config[key] for key in ("domain", "algorithm", "seed", "weights", "env_kwargs")})
     new_directory = not run_dir.path.exists()
+    lock = _created(run_dir).lock(f"sb3-sfgpi train {args.domain} --seed {args.seed} --out {run_dir}")  # one writer
     try:
         model = _model(args, preset, preset.build_env(config["env_kwargs"]), _created(run_dir), config)
-    except ValueError:  # refused settings: leave no empty run directory behind
+    except (ValueError, UsageError):  # refused settings: leave no empty run directory behind
         if new_directory:
+            lock.discard()
             with suppress(OSError):
                 run_dir.path.rmdir()
         raise
@@ -101,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         raise TrainingStopped(_stopped_message(args, run_dir, model, error)) from error
     finally:
         model.close()
+        lock.release()
     _print_result(run_dir, model)
     return 0
 
@@ -265,7 +272,7 @@ def _stopped_message(args: argparse.Namespace, run_dir: RunDirectory, model: MAS
     reason = " ".join(reason.split())  # one line
     weights = model.settings["weights"]
     return (
-        f"training stopped in iteration {model.callback.iteration + 1} ({reason}). The checkpoint of the last finished "
+        f"training stopped in iteration {done + 1} ({reason}). The checkpoint of the last finished "
         f"iteration ({done} done) in {run_dir} is intact: continue with "
         f"`sb3-sfgpi train {args.domain} --algo {args.algo} --seed {args.seed} --out {run_dir} --resume"
         + ("" if args.iterations is None else f" --iterations {args.iterations}")

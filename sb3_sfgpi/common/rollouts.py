@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 from pettingzoo import ParallelEnv
 
+from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
+
 #: Maps the observations of the live agents to their actions.
 JointPolicy = Callable[[dict[str, Any]], dict[str, Any]]
 
@@ -74,6 +76,7 @@ def run_episodes(
     step_infos: list[dict[str, dict[str, list[float]]]] = []
     for episode in range(n_episodes):
         obs, infos = env.reset(seed=None if seed is None else seed + episode)
+        check_parallel_reset(env, 0, obs, env.possible_agents)
         agents = list(env.agents)
         dims = {agent: env.reward_space(agent).shape[0] for agent in agents}  # type: ignore[attr-defined]
         disc = {agent: np.zeros(dims[agent]) for agent in agents}
@@ -81,9 +84,13 @@ def run_episodes(
         last_infos = dict(infos)
         trace: dict[str, dict[str, list[float]]] = {}
         discount = 1.0
+        step = 0
         while env.agents:
-            actions = policy({agent: obs[agent] for agent in env.agents})
-            obs, rewards, _, _, infos = env.step(actions)
+            live = list(env.agents)
+            actions = policy({agent: obs[agent] for agent in live})
+            obs, rewards, terminations, truncations, infos = env.step(actions)
+            step += 1
+            check_parallel_step(env, 0, live, (obs, rewards, terminations, truncations), env.agents, step)
             for agent, reward in rewards.items():
                 disc[agent] += discount * np.asarray(reward, dtype=np.float64)
                 total[agent] += reward

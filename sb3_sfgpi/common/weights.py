@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+import torch as th
 
 
 def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndarray:
@@ -24,6 +25,8 @@ def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndar
     :return: float64 array of shape ``(reward_dim,)`` with ``w >= 0`` and ``sum(w) == 1``
     :raises ValueError: wrong length, NaN or infinite, negative, or all-zero weights
     """
+    if isinstance(weights, th.Tensor):  # one that requires grad too
+        weights = weights.detach().cpu().numpy()
     try:
         w = np.asarray(weights, dtype=np.float64)
     except (TypeError, ValueError) as error:

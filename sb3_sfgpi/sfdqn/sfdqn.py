@@ -19,6 +19,7 @@ from stable_baselines3.common.utils import LinearSchedule, polyak_update, safe_m
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.checks import check_finite, env_name
 from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.vec_env import vec_env_reward_dim, wrap_mo_env
@@ -81,6 +82,51 @@ def _check_options(
         raise ValueError(f"optimistic_init must be a finite number, got {optimistic_init!r}")
     if optimistic_init and not planning_sweeps:
         raise ValueError("optimistic_init needs planning (planning_sweeps > 0): planning settles the optimism")
+
+
+def _check_schedule_options(
+    buffer_size: Any,
+    learning_starts: Any,
+    train_freq: Any,
+    gradient_steps: Any,
+    target_update_interval: Any,
+    tau: Any,
+    exploration: tuple[Any, Any, Any],
+    max_grad_norm: Any,
+) -> None:
+    """Refuse sizes, intervals and fractions SB3 takes silently and then divides by, or never learns with."""
+
+    def integer(value: Any, least: int) -> bool:
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= least
+
+    def fraction(value: Any, low: float = 0.0) -> bool:
+        ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+        return ok and low <= value <= 1.0
+
+    frequency = train_freq[0] if isinstance(train_freq, (tuple, list)) and len(train_freq) == 2 else train_freq
+    unit_ok = not isinstance(train_freq, (tuple, list)) or (
+        len(train_freq) == 2 and train_freq[1] in ("step", "episode")
+    )
+    problems = [
+        (integer(buffer_size, 1), "buffer_size must be a positive integer", buffer_size),
+        (integer(learning_starts, 0), "learning_starts must be an integer >= 0", learning_starts),
+        (integer(frequency, 1) and unit_ok, "train_freq must be a positive integer or (n, 'step'|'episode')",
+         train_freq),
+        (integer(gradient_steps, 1) or gradient_steps == -1, "gradient_steps must be a positive integer or -1",
+         gradient_steps),
+        (integer(target_update_interval, 1), "target_update_interval must be a positive integer",
+         target_update_interval),
+        (fraction(tau), "tau must be a number in [0, 1]", tau),
+        (fraction(exploration[0]) and exploration[0] > 0, "exploration_fraction must be a number in (0, 1]",
+         exploration[0]),
+        (fraction(exploration[1]), "exploration_initial_eps must be a number in [0, 1]", exploration[1]),
+        (fraction(exploration[2]), "exploration_final_eps must be a number in [0, 1]", exploration[2]),
+        (isinstance(max_grad_norm, numbers.Real) and not isinstance(max_grad_norm, bool) and max_grad_norm > 0,
+         "max_grad_norm must be a positive number", max_grad_norm),
+    ]  # fmt: skip
+    for ok, message, value in problems:
+        if not ok:
+            raise ValueError(f"{message}, got {value!r}")
 
 
 class SFDQN(OffPolicyAlgorithm):
@@ -192,6 +238,16 @@ class SFDQN(OffPolicyAlgorithm):
             optimistic_init,
             policy_class,
         )
+        _check_schedule_options(
+            buffer_size,
+            learning_starts,
+            train_freq,
+            gradient_steps,
+            target_update_interval,
+            tau,
+            (exploration_fraction, exploration_initial_eps, exploration_final_eps),
+            max_grad_norm,
+        )
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
         super().__init__(
             policy,
@@ -274,7 +330,12 @@ class SFDQN(OffPolicyAlgorithm):
 
         :param observation: one observation or a batch
         :return: shape ``(batch, n_actions, d)``
+        :raises ValueError: an observation that is not finite numbers, or outside a table's observation space
         """
+        if not isinstance(observation, dict):
+            observation = numeric_array(observation)  # finite numbers
+            if isinstance(self.policy, TabularPolicy):  # refuse what would index another state's row, as predict
+                self.policy.sf_net.rows(observation.reshape(-1, *self.observation_space.shape))  # type: ignore[misc]
         obs_tensor, _ = self.policy.obs_to_tensor(observation)
         with th.no_grad():
             return self.policy.sf_net(obs_tensor).cpu().numpy()
@@ -377,6 +438,7 @@ class SFDQN(OffPolicyAlgorithm):
         The buffer copies what it stores; the next observations need a copy of their own only where a finished
         episode's terminal observation replaces the first observation of the next one.
         """
+        self._check_transition(new_obs, reward)
         if self._vec_normalize_env is not None or not isinstance(new_obs, np.ndarray):
             super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
             return
@@ -389,6 +451,19 @@ class SFDQN(OffPolicyAlgorithm):
                 next_obs[i] = infos[i]["terminal_observation"]
         replay_buffer.add(self._last_original_obs, next_obs, buffer_action, reward, dones, infos)  # type: ignore[arg-type]
         self._last_obs = new_obs  # type: ignore[assignment]
+
+    def _check_transition(self, new_obs: np.ndarray | dict[str, np.ndarray], reward: np.ndarray) -> None:
+        """Refuse a non-finite reward or observation of a step before it is stored, naming env (agent) and step."""
+        if np.isfinite(reward).all() and all(
+            np.isfinite(part).all() or np.asarray(part).dtype.kind not in "fc"
+            for part in (new_obs.values() if isinstance(new_obs, dict) else (new_obs,))
+        ):
+            return
+        name = env_name(self.env.envs[0]) if hasattr(self.env, "envs") else env_name(self.env)
+        for i in range(len(reward)):
+            row = {key: part[i] for key, part in new_obs.items()} if isinstance(new_obs, dict) else new_obs[i]
+            check_finite(reward[i], "reward", name, f"env {i}", self.num_timesteps)
+            check_finite(row, "observation", name, f"env {i}", self.num_timesteps)
 
     def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
         # MOMonitor reports vector returns; the scalar return SB3 logs is w · return for the current w.
@@ -437,6 +512,19 @@ class SFDQN(OffPolicyAlgorithm):
         """
         if self.optimistic_init:
             self.policy.plan(self.replay_buffer, self.gamma, SETTLE_SWEEPS, untried_value=0.0)  # type: ignore[attr-defined]
+
+    @classmethod
+    def load(cls, path: Any, env: GymEnv | None = None, device: th.device | str = "auto", **kwargs: Any) -> Any:
+        """
+        SB3's :meth:`~stable_baselines3.common.base_class.BaseAlgorithm.load` (which unpickles: load only files you
+        trust), refusing in one line a file another algorithm saved.
+
+        :raises ValueError: the file is not an SFDQN model (e.g. SB3's DQN: it has no ``reward_dim``)
+        """
+        try:
+            return super().load(path, env=env, device=device, **kwargs)
+        except (AttributeError, KeyError) as error:
+            raise ValueError(f"{path} is not an SFDQN model (saved by another algorithm?): {error!r}") from None
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "exploration_schedule"]

@@ -1,0 +1,89 @@
+"""What an env hands the learners, checked where it appears: finite rewards and observations, known agents.
+
+A NaN or inf reward stored in a replay buffer spreads into every successor feature that bootstraps from it, and the
+failure shows much later (a policy set that cannot be saved, an OLS value that is not finite). An agent that was not
+in the episode shows as a bare ``KeyError`` far from its cause. These checks raise a ``ValueError`` naming the env,
+the agent and the step, before anything is stored.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping
+from typing import Any
+
+import numpy as np
+
+
+def env_name(env: Any) -> str:
+    """A short name of an env (a Gymnasium id, a PettingZoo ``metadata["name"]``, or its class)."""
+    for candidate in (env, getattr(env, "unwrapped", None)):
+        spec = getattr(candidate, "spec", None)
+        if getattr(spec, "id", None):
+            return str(spec.id)
+        metadata = getattr(candidate, "metadata", None)
+        if isinstance(metadata, Mapping) and isinstance(metadata.get("name"), str):
+            return metadata["name"]
+    return type(getattr(env, "unwrapped", env)).__name__
+
+
+def check_finite(value: Any, what: str, env: str, agent: Any, step: int) -> None:
+    """
+    Refuse a reward or an observation holding NaN or inf.
+
+    :raises ValueError: "<env>, agent <agent>, step <step>: the <what> is not finite (...)"
+    """
+    values = value.values() if isinstance(value, Mapping) else (value,)
+    for part in values:
+        array = np.asarray(part)
+        if array.dtype.kind in "fc" and not np.isfinite(array).all():
+            shown = np.array2string(array.ravel()[:8], precision=4, separator=", ")
+            raise ValueError(
+                f"{env}, agent {agent}, step {step}: the {what} is not finite ({shown}); it was not stored (NaN or "
+                "inf would spread into every successor feature)"
+            )
+
+
+def check_parallel_reset(env: Any, copy: int, observations: Mapping[str, Any], known: Collection[str]) -> None:
+    """
+    Refuse a reset that brings agents the learners do not know, or non-finite observations.
+
+    :param known: the agents the learners were made for (the env's ``possible_agents``)
+    :raises ValueError: naming the env, the agent and the step (0)
+    """
+    name = env_name(env)
+    for agent, observation in observations.items():
+        if agent not in known:
+            raise ValueError(
+                f"{name}, agent {agent!r}, step 0 (reset of copy {copy}): not one of the env's possible_agents "
+                f"{sorted(known)}; every agent must be declared in possible_agents"
+            )
+        check_finite(observation, "observation", name, repr(agent), 0)
+
+
+def check_parallel_step(env: Any, copy: int, acted: Collection[str], results: tuple, agents: Any, step: int) -> None:
+    """
+    Refuse a ParallelEnv step whose results name an agent that did not act (one that left and came back, or an
+    unknown one), that lack an agent that acted, or that hold non-finite observations or rewards.
+
+    :param acted: the agents that acted in this step (those live before it)
+    :param results: what ``step`` returned: observations, rewards, terminations, truncations, infos
+    :param agents: the env's agents after the step
+    :raises ValueError: naming the env, the agent and the step
+    """
+    name = env_name(env)
+    observations, rewards, terminations, truncations = results[:4]
+    where = f"step {step}" + (f" of copy {copy}" if copy else "")
+    for agent in {*observations, *rewards, *agents}:
+        if agent not in acted:
+            raise ValueError(
+                f"{name}, agent {agent!r}, {where}: in the step's results but it did not act (an agent that left "
+                "the episode must not come back in it, and only agents of possible_agents present at reset may act)"
+            )
+    for agent in acted:
+        for what, returned in (("observation", observations), ("reward", rewards), ("termination", terminations)):
+            if agent not in returned:
+                raise ValueError(f"{name}, agent {agent!r}, {where}: it acted but the step returned no {what} for it")
+        if agent not in truncations:
+            raise ValueError(f"{name}, agent {agent!r}, {where}: it acted but the step returned no truncation for it")
+        check_finite(rewards[agent], "reward", name, repr(agent), step)
+        check_finite(observations[agent], "observation", name, repr(agent), step)
