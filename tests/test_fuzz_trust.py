@@ -85,7 +85,8 @@ def traffic_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fuzz_trust") / "traffic"
     argv = [
         "train", "traffic", "--env", "num_seconds=20", "--iterations", "1", "--steps-per-iteration", "8",
-        "--set", "n_test_weights=1", "--set", "eval_workers=0", "--set", "validation_weights=0", "--learner", "learning_starts=0",
+        "--set", "n_test_weights=1", "--set", "eval_workers=0", "--set", "validation_weights=0",
+        "--learner", "learning_starts=0",
         "--learner", "batch_size=4", "--no-progress", "--out", str(out),
     ]  # fmt: skip
     assert main(argv) == 0
@@ -157,7 +158,9 @@ def test_env_arguments_of_a_shared_run_write_nothing_outside_it(traffic_run, tmp
 def four_room_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fuzz_trust") / "four-room"
     argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--set", "n_test_weights=2"]
-    assert main([*argv, "--env", "max_steps=30", "--set", "validation_weights=0", "--no-progress", "--out", str(out)]) == 0
+    assert (
+        main([*argv, "--env", "max_steps=30", "--set", "validation_weights=0", "--no-progress", "--out", str(out)]) == 0
+    )
     return out
 
 

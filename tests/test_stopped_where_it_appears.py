@@ -91,7 +91,12 @@ class BadChain(ParallelChainEnv):
     ],
 )
 def test_masfols_stops_at_the_step_a_bad_reward_or_agent_appears(fault, message):
-    model = MASFOLS(BadChain(fault, at=6), steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS, evaluation=EvaluationConfig(test_weights=2))
+    model = MASFOLS(
+        BadChain(fault, at=6),
+        steps_per_iteration=300,
+        learner_kwargs=LEARNER_KWARGS,
+        evaluation=EvaluationConfig(test_weights=2),
+    )
     with pytest.raises(ValueError, match=message):
         model.learn(1)
     assert model.runner.num_timesteps < 10  # not after the whole iteration

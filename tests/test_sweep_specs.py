@@ -14,7 +14,16 @@ import pytest
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.sweep import RunSpec, read_spec, run_sweep
 
-TINY = ["--env", "max_steps=30", "--steps-per-iteration", "600", "--set", "n_test_weights=2", "--set", "validation_weights=0"]
+TINY = [
+    "--env",
+    "max_steps=30",
+    "--steps-per-iteration",
+    "600",
+    "--set",
+    "n_test_weights=2",
+    "--set",
+    "validation_weights=0",
+]
 
 
 @pytest.mark.parametrize("name", ["/abs/path", "../x", "a/b", "./r", ".", "..", "a\\b", "x\0y", "tab\there", "é" * 101])

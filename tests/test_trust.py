@@ -15,7 +15,8 @@ from sb3_sfgpi.masfols import MASFOLS
 #: A traffic run of seconds: 20 simulated seconds, 8 steps, one test weight, no workers.
 TINY_TRAFFIC = [
     "train", "traffic", "--env", "num_seconds=20", "--iterations", "1", "--steps-per-iteration", "8",
-    "--set", "n_test_weights=1", "--set", "eval_workers=0", "--set", "validation_weights=0", "--learner", "learning_starts=0",
+    "--set", "n_test_weights=1", "--set", "eval_workers=0", "--set", "validation_weights=0",
+    "--learner", "learning_starts=0",
     "--learner", "batch_size=4", "--no-progress",
 ]  # fmt: skip
 TINY_FOUR_ROOM = [
