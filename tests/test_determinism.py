@@ -33,17 +33,20 @@ from sb3_sfgpi.sfdqn.networks import TabularSFNetwork, greedy_entries
 PROPERTY_SETTINGS = settings(max_examples=40, deadline=None, database=None)
 ROOT = Path(__file__).resolve().parents[1]
 
-#: The short run: one learner per agent trained for a weight on an edge of the simplex (two non-zero components, one
-#: zero), the iteration-2 weight of the main job. Before the fix its TD targets' argmax met ties (rows equal in ``w · ψ``
-#: and different where ``w`` is 0) that the OpenBLAS SkylakeX kernel broke otherwise than the Haswell one, and the
-#: learned tables differed.
+#: The short run: one learner per agent trained for a weight on an edge of the simplex (two non-zero components,
+#: one zero), the iteration-2 weight of the main job. Before the fix its TD targets' argmax met ties (rows equal in
+#: ``w · ψ`` and different where ``w`` is 0) that the OpenBLAS SkylakeX kernel broke otherwise than the Haswell one,
+#: and the learned tables differed.
 RUN = ["--algo", "fixed", "--w", "0.0486", "0", "0.9514", "--steps-per-iteration", "8000", "--iterations", "1"]
 RUN += ["--seed", "0"]
 
 #: Kernel and thread settings, each as a machine might have them. Unset first: the reference.
 SETTINGS = {
     "default": ({}, 1),
-    "haswell-l2-512-blas2": ({"OPENBLAS_CORETYPE": "Haswell", "OPENBLAS_L2_SIZE": "512", "OPENBLAS_NUM_THREADS": "2"}, 2),
+    "haswell-l2-512-blas2": (
+        {"OPENBLAS_CORETYPE": "Haswell", "OPENBLAS_L2_SIZE": "512", "OPENBLAS_NUM_THREADS": "2"},
+        2,
+    ),
     "sandybridge-blas1": ({"OPENBLAS_CORETYPE": "Sandybridge", "OPENBLAS_NUM_THREADS": "1"}, 2),
 }
 TIMING_KEYS = ("wall_time", "eval_time")
