@@ -82,6 +82,8 @@ def test_weighted_sum_is_the_sum_in_the_order_of_the_objectives():
     assert np.array_equal(weighted_sum(values, w), expected)
     assert weighted_sum(values, w).dtype == np.float32
     assert weighted_sum(values.astype(np.float64), w).dtype == np.float64  # w takes the dtype of the values
+    large = rng.random((5000, 4, 3), dtype=np.float32)  # summed column by column instead: the same bits
+    assert np.array_equal(weighted_sum(large, w), (large[..., 0] * w[0] + large[..., 1] * w[1]) + large[..., 2] * w[2])
 
 
 def test_weighted_sum_gives_numpy_and_torch_the_same_bits():

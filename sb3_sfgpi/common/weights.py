@@ -73,11 +73,27 @@ def weighted_sum(values: Array, weights: np.ndarray | th.Tensor) -> Array:
     """
     if isinstance(values, th.Tensor):
         w = th.as_tensor(weights, dtype=values.dtype, device=values.device)
-    else:
-        w = np.asarray(weights, dtype=values.dtype)
-    total = values[..., 0] * w[..., 0]
+        return _sum_of_columns(values * w)
+    w = np.asarray(weights, dtype=values.dtype)
+    if values.size <= _SMALL:  # one product of the whole array (fewest calls; same operations, same order)
+        return _sum_of_columns(values * w)
+    total = values[..., 0] * w[..., 0]  # column by column: no temporary of the size of values
     for k in range(1, values.shape[-1]):
-        total = total + values[..., k] * w[..., k]
+        total += values[..., k] * w[..., k]
+    return total
+
+
+#: Arrays up to this many elements are multiplied at once by :func:`weighted_sum` (the same bits either way).
+_SMALL = 2048
+
+
+def _sum_of_columns(products: Array) -> Array:
+    """``(p_0 + p_1) + p_2 + ...`` over the last axis."""
+    if products.shape[-1] == 1:
+        return products[..., 0].clone() if isinstance(products, th.Tensor) else products[..., 0].copy()
+    total = products[..., 0] + products[..., 1]
+    for k in range(2, products.shape[-1]):
+        total += products[..., k]
     return total
 
 
