@@ -47,7 +47,7 @@ from sb3_sfgpi.common.serialization import (
     space_from_dict,
     space_to_dict,
 )
-from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.common.weights import validate_weights, weighted_sum
 from sb3_sfgpi.ols import OLS
 from sb3_sfgpi.policy_files import (
     CorruptPolicySetError,
@@ -406,7 +406,7 @@ class GPIPolicy:
             return stacked.q_values_numpy(obs, weights[2])
         obs_tensor = th.as_tensor(obs, device=self.device)
         with th.no_grad():
-            return th.amax(stacked.psi(obs_tensor) @ weights[1], dim=0).cpu().numpy()
+            return th.amax(weighted_sum(stacked.psi(obs_tensor), weights[1]), dim=0).cpu().numpy()
 
     def predict(
         self,

@@ -12,27 +12,37 @@ is queued with the optimistic improvement (Eq. 15)
 an upper bound of ``max_π w · V^π - V^CB(w)`` whenever the policies trained for ``W`` were optimal for them.
 The queue starts with the simplex extrema at infinite priority; once it is empty, the values cover every weight.
 
-**Tolerance.** One absolute ``tolerance`` (default ``1e-6``) is used everywhere:
+**Tolerance.** One absolute ``tolerance`` (default :data:`TOLERANCE`) is used everywhere:
 
 * two value vectors are the same value when no component differs by more than it (duplicates are not added);
 * two weights are the same weight when no component differs by more than it (corner deduplication, visited
   weights, weights already queued);
-* a corner weight is queued only when its priority exceeds it;
+* a corner weight is queued only when its priority exceeds it, and two priorities within it of each other are equal
+  (the tie rule: the weight queued first is popped first, so that LP round-off between corners of mathematically
+  equal priority, e.g. symmetric ones, never decides the order);
 * a new value makes a queued corner weight obsolete when it raises ``V^CB`` there by more than it, and a value
   is in the CCS when, at some weight, it beats every other value by more than it.
+
+Every ``w · V`` is :func:`~sb3_sfgpi.common.weights.weighted_sum` (products added in the order of the objectives,
+no BLAS), so the upper surface, the LPs' bounds and therefore the queue are the same on every machine. The
+tolerance is far above the round-off of these sums (values are returns of order 1 to 100, their round-off about
+``1e-14``) and far below the differences between the values of distinct policies that matter.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import HalfspaceIntersection, cKDTree
 
-from sb3_sfgpi.common.weights import simplex_extrema, validate_weights
+from sb3_sfgpi.common.weights import simplex_extrema, validate_weights, weighted_sum
+
+#: The default absolute tolerance of :class:`OLS` (equal values, equal weights, equal priorities; module docstring).
+TOLERANCE = 1e-6
 
 # Values are rescaled into [0, 1] before the vertex enumeration, so the upper surface lies below c = 1; the cap
 # c <= _CAP bounds the polytope and its own vertices (at c = _CAP) are dropped afterwards.
@@ -45,7 +55,7 @@ def _same(a: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
 
 def _margin(values: np.ndarray, i: int, w: np.ndarray) -> float:
     """``min_{j != i} w · (V_i - V_j)``: by how much value ``i`` beats every other at ``w`` (inf if it is alone)."""
-    return float(np.min(np.delete(values[i] - values, i, axis=0) @ w, initial=np.inf))
+    return float(np.min(weighted_sum(np.delete(values[i] - values, i, axis=0), w), initial=np.inf))
 
 
 def _corner_weights(values: np.ndarray, tolerance: float) -> list[np.ndarray]:
@@ -74,7 +84,8 @@ def _corner_weights(values: np.ndarray, tolerance: float) -> list[np.ndarray]:
         ]
     )
     center = np.full(d, 1.0 / d)
-    interior = np.append(center[:-1], (np.max(scaled @ center) + _CAP) / 2)  # strictly inside every halfspace
+    top = np.max(weighted_sum(scaled, center))
+    interior = np.append(center[:-1], (top + _CAP) / 2)  # strictly inside every halfspace
     vertices = HalfspaceIntersection(halfspaces, interior).intersections
     vertices = vertices[vertices[:, -1] < (1.0 + _CAP) / 2]  # keep the upper surface (c <= 1), drop the cap
     free = vertices[:, :-1]
@@ -108,7 +119,7 @@ class OLS:
     :param tolerance: absolute tolerance for equal values, equal weights, priorities and improvements (> 0)
     """
 
-    def __init__(self, reward_dim: int, tolerance: float = 1e-6):
+    def __init__(self, reward_dim: int, tolerance: float = TOLERANCE):
         if int(reward_dim) != reward_dim or reward_dim < 2:
             raise ValueError(f"reward_dim must be an integer >= 2, got {reward_dim!r}")
         if not (math.isfinite(tolerance) and tolerance > 0):
@@ -161,7 +172,7 @@ class OLS:
         self._queue = [
             (p, u)
             for (p, u), best in zip(self._queue, old_best, strict=True)
-            if u @ value <= best + tol or u.max() >= 1 - tol
+            if weighted_sum(u, value) <= best + tol or u.max() >= 1 - tol
         ]
         for corner in self._new_corners(value):
             priority = self._priority(corner)
@@ -271,19 +282,20 @@ class OLS:
     def _new_corners(self, value: np.ndarray) -> np.ndarray:
         """The corner weights where ``value`` is on the upper surface, neither visited nor queued."""
         corners = np.array(self.corner_weights())
-        on_surface = corners[(corners @ np.array(self._values).T).max(axis=1) - corners @ value <= self.tolerance]
+        surface = weighted_sum(corners[:, None, :], np.array(self._values)[None]).max(axis=1)
+        on_surface = corners[surface - weighted_sum(corners, value) <= self.tolerance]
         known = np.array([*self._visited, *(u for _, u in self._queue)])
         distance, _ = cKDTree(known).query(on_surface, p=np.inf)  # to the nearest known weight
         return on_surface[distance > self.tolerance]
 
     def _max_value(self, w: np.ndarray) -> float:
-        return float(np.max(np.array(self._values) @ w)) if self._values else -math.inf
+        return float(np.max(weighted_sum(np.array(self._values), w))) if self._values else -math.inf
 
-    def _priority(self, w: np.ndarray, pending: Sequence[np.ndarray] = ()) -> float:
-        """Eq. 15 at ``w``, with the ``pending`` weights counted as visited without improvement."""
-        if not self._visited and len(pending) == 0:
+    def _priority(self, w: np.ndarray) -> float:
+        """Eq. 15 at ``w``: how much the optimistic value could exceed the best known value there."""
+        if not self._visited:
             return math.inf
-        visited = np.array([*self._visited, *pending])
+        visited = np.array(self._visited)
         bounds = [self._max_value(u) for u in visited]
         result = linprog(-w, A_ub=visited, b_ub=bounds, bounds=[(None, None)] * self.reward_dim, method="highs")
         if result.status == 3:  # unbounded
@@ -293,7 +305,8 @@ class OLS:
         return max(0.0, -result.fun - self._max_value(w))
 
     def _push(self, priority: float, w: np.ndarray) -> None:
-        position = next((i for i, (p, _) in enumerate(self._queue) if p < priority), len(self._queue))
+        """Queue ``w`` after every weight of higher or equal priority (equal: within the tolerance)."""
+        position = next((i for i, (p, _) in enumerate(self._queue) if p < priority - self.tolerance), len(self._queue))
         self._queue.insert(position, (priority, w))
 
     def _coverage(self, candidates: Iterable[int]) -> dict[int, np.ndarray]:

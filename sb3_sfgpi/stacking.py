@@ -18,6 +18,7 @@ import torch as th
 from torch import nn
 from torch.func import functional_call, stack_module_state
 
+from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.policy_files import _ACTIVATIONS
 from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork
 
@@ -57,7 +58,7 @@ class StackedTables:
         assert self.tables_numpy is not None
         index = self.rows(obs)  # raises ValueError for an observation outside the space
         rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
-        return (rows @ weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
+        return weighted_sum(rows, weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
 
 
 class StackedMLP:

@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
+
+from sb3_sfgpi.common.weights import weighted_sum
 
 
 def expected_utility(weights: np.ndarray, returns: np.ndarray) -> float:
     """
     Mean scalarised return ``mean_i w_i · G_i`` over test weights.
+
+    The same bits on every machine and for every order of the rows: each ``w_i · G_i`` is
+    :func:`~sb3_sfgpi.common.weights.weighted_sum` and their sum is exactly rounded (``math.fsum``), so two sets of
+    episodes with the same scalarised returns in another order (e.g. the agents' roles swapped) score exactly the
+    same, and policy validation's "no worse" comparison sees a tie as a tie.
 
     :param weights: shape ``(n, d)``
     :param returns: the vector return obtained for each weight, shape ``(n, d)``
@@ -17,7 +25,9 @@ def expected_utility(weights: np.ndarray, returns: np.ndarray) -> float:
     weights, returns = np.asarray(weights, dtype=np.float64), np.asarray(returns, dtype=np.float64)
     if weights.shape != returns.shape:
         raise ValueError(f"weights {weights.shape} and returns {returns.shape} must have the same shape")
-    return float(np.mean(np.sum(weights * returns, axis=1)))
+    if len(returns) == 0:
+        return math.nan  # as the mean of nothing
+    return math.fsum(weighted_sum(returns, weights).tolist()) / len(returns)
 
 
 def hypervolume(points: Sequence[np.ndarray] | np.ndarray, reference: Sequence[float] | np.ndarray) -> float:

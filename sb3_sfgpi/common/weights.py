@@ -2,14 +2,25 @@
 
 A weight vector ``w`` of length ``d`` scalarizes a vector reward ``r`` into ``w · r``.
 Every public entry point of the library passes user weights through :func:`validate_weights`.
+
+**The same numbers on every machine.** Every ``w · v`` that a decision depends on (greedy and GPI actions, TD
+targets, planning, OLS, validation scores) is :func:`weighted_sum`: element-wise products added in a fixed order.
+A matrix product (``v @ w``) hands the sum to BLAS (numpy: OpenBLAS; torch: MKL/oneDNN), which picks its kernel at
+run time from the CPU (and ``OPENBLAS_CORETYPE``): kernels differ in the order of the additions and in fusing them
+into FMAs, and a kernel may even give two identical rows different results, depending on where they sit in the
+matrix. An exact tie between actions (identical ``ψ`` rows, or rows that differ only where ``w`` is 0) then went to
+whichever action the kernel rounded up, and a seeded run gave different numbers on different machines.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TypeVar
 
 import numpy as np
 import torch as th
+
+Array = TypeVar("Array", np.ndarray, th.Tensor)
 
 
 def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndarray:
@@ -42,6 +53,50 @@ def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndar
     if not np.isfinite(w.sum()):  # huge weights: into [0, 1] first, as their sum overflows
         w = w / w.max()
     return w / w.sum()
+
+
+def weighted_sum(values: Array, weights: np.ndarray | th.Tensor) -> Array:
+    """
+    ``w · v`` over the last axis, the same bits on every machine: ``(v_0 w_0 + v_1 w_1) + v_2 w_2 + ...``.
+
+    Each product and each sum is one correctly rounded IEEE operation (numpy's and torch's element-wise kernels,
+    whatever their SIMD width), added in the order of the objectives; no BLAS, no FMA, no reduction whose order
+    depends on the CPU or the number of threads. The consequences:
+
+    * identical rows give identical results, wherever they are in ``values`` (exact ties stay exact ties);
+    * rows that differ only where ``w`` is 0 give identical results (``v_k · 0`` adds an exact 0);
+    * the result depends only on the inputs, so every decision made from it (an argmax, a comparison) is the same
+      on every machine.
+
+    :param values: numpy array or torch tensor of shape ``(..., d)``
+    :param weights: shape ``(d,)``, or broadcastable against ``values`` (e.g. ``(batch, 1, d)``); converted to the
+        dtype (and device) of ``values``
+    :return: shape ``values.shape[:-1]``, in the dtype of ``values``
+    """
+    if isinstance(values, th.Tensor):
+        w = th.as_tensor(weights, dtype=values.dtype, device=values.device)
+        return _sum_of_columns(values * w)
+    w = np.asarray(weights, dtype=values.dtype)
+    if values.size <= _SMALL:  # one product of the whole array (fewest calls; same operations, same order)
+        return _sum_of_columns(values * w)
+    total = values[..., 0] * w[..., 0]  # column by column: no temporary of the size of values
+    for k in range(1, values.shape[-1]):
+        total += values[..., k] * w[..., k]
+    return total
+
+
+#: Arrays up to this many elements are multiplied at once by :func:`weighted_sum` (the same bits either way).
+_SMALL = 2048
+
+
+def _sum_of_columns(products: Array) -> Array:
+    """``(p_0 + p_1) + p_2 + ...`` over the last axis."""
+    if products.shape[-1] == 1:
+        return products[..., 0].clone() if isinstance(products, th.Tensor) else products[..., 0].copy()
+    total = products[..., 0] + products[..., 1]
+    for k in range(2, products.shape[-1]):
+        total += products[..., k]
+    return total
 
 
 def simplex_extrema(reward_dim: int) -> list[np.ndarray]:

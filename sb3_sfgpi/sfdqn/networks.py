@@ -16,6 +16,8 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.common.type_aliases import PyTorchObs
 from torch import nn
 
+from sb3_sfgpi.common.weights import weighted_sum
+
 #: Largest table :class:`TabularSFNetwork` builds (number of observation values).
 MAX_TABLE_STATES = 50_000_000
 #: Most heads an :class:`SFNetwork` takes (``n_critics``).
@@ -35,18 +37,19 @@ def check_n_critics(n_critics: Any) -> int:
 
 def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
     """
-    ``Q_w(s, a) = w · ψ(s, a)``.
+    ``Q_w(s, a) = w · ψ(s, a)``, summed in the order of the objectives (:func:`~sb3_sfgpi.common.weights.weighted_sum`:
+    no matrix product, so the same bits, and the same argmax, on every CPU).
 
     :param psi: successor features, shape ``(batch, n_actions, d)``
     :param weights: shape ``(d,)`` or ``(batch, d)``
     :return: shape ``(batch, n_actions)``
     """
-    return (psi * weights.reshape(-1, 1, psi.shape[-1])).sum(dim=-1)
+    return weighted_sum(psi, weights.reshape(-1, 1, psi.shape[-1]))
 
 
 def greedy_actions(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
     """
-    ``argmax_a w · ψ(s, a)`` (ties go to the first action).
+    ``argmax_a w · ψ(s, a)`` (ties, exactly equal :func:`scalarize` values, go to the first action).
 
     :param psi: successor features, shape ``(batch, n_actions, d)``
     :param weights: shape ``(d,)`` or ``(batch, d)``
@@ -63,9 +66,10 @@ def greedy_entries(entries: np.ndarray, first: np.ndarray, n_actions: int, weigh
     :param first: ``s * n_actions`` of each state, shape ``(batch,)``
     :param n_actions: number of actions
     :param weights: ``w``, shape ``(d,)``
-    :return: the row of each state's greedy action (ties go to the first), shape ``(batch,)``
+    :return: the row of each state's greedy action (ties, exactly equal
+        :func:`~sb3_sfgpi.common.weights.weighted_sum` values, go to the first), shape ``(batch,)``
     """
-    return first + (entries[first[:, None] + np.arange(n_actions)] @ weights).argmax(axis=1)
+    return first + weighted_sum(entries[first[:, None] + np.arange(n_actions)], weights).argmax(axis=1)
 
 
 def argmax_random_ties(q_values: np.ndarray, rng: np.random.Generator | Any = np.random) -> np.ndarray:

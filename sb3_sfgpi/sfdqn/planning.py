@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sb3_sfgpi.common.weights import weighted_sum
+
 #: Sweeps stop once no entry of ψ moves by more than this.
 TOLERANCE = 1e-6
 
@@ -76,7 +78,7 @@ class EmpiricalModel:
         sweeps = 0
         while sweeps < max_sweeps:
             sweeps += 1
-            greedy = first + (psi.reshape(len(states), n_actions, -1) @ weights).argmax(axis=1)
+            greedy = first + weighted_sum(psi.reshape(len(states), n_actions, -1), weights).argmax(axis=1)
             contributions = expected_reward + scale * np.take(psi, greedy[following_state], axis=0)
             backed_up = contributions if one_outcome_each else self._summed_by_pair(contributions)
             change = np.abs(np.take(psi, own, axis=0) - backed_up).max(initial=0.0)

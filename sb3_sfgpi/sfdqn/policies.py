@@ -16,6 +16,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.sfdqn.networks import (
     SFNetwork,
     TabularSFNetwork,
@@ -308,7 +309,7 @@ class TabularPolicy(SFDQNPolicy):
         net = self.sf_net
         obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
         psi = net.table.weight.detach().numpy()[net.rows(obs)].reshape(-1, net.n_actions, self.reward_dim)
-        return psi @ np.asarray(weights, dtype=np.float32), vectorized
+        return weighted_sum(psi, np.asarray(weights, dtype=np.float32)), vectorized
 
     def fill(self, value: float) -> None:
         """
