@@ -163,8 +163,6 @@ class MASFOLS:
         #: What :meth:`learn` writes to ``run.json``: the settings, and any plain data added here (the CLI adds the
         #: domain and the env's arguments)
         self.run_info: dict[str, Any] = dict(self.settings)
-        if self.run_dir is not None:
-            self.runner.set_logger(self.run_dir.make_logger())
 
     def _evaluation(
         self, config: EvaluationConfig, fixed: Any, sharing: str, env_fn: Callable[[], ParallelEnv] | None
@@ -222,11 +220,19 @@ class MASFOLS:
         :param callback: more runner-level callbacks (they see every joint step)
         :param progress_bar: show progress bars (all steps, the iteration, the evaluation)
         :return: self
+        :raises ~sb3_sfgpi.run_directory.RunDirectoryBusy: another process writes the run directory
         """
-        if self.run_dir is not None and not self.callback.resume:
-            if self.run_dir.has_checkpoint():
-                raise ValueError(f"{self.run_dir} already holds a run: continue it with MASFOLS.load")
-            self.run_dir.write_config(self.run_info)
+        if self.run_dir is None:
+            return self._learn(max_iterations, callback, progress_bar)
+        with self.run_dir.lock(f"MASFOLS.learn (seed {self.settings['seed']})"):  # one writer per run directory
+            if not self.callback.resume:
+                if self.run_dir.has_checkpoint():
+                    raise ValueError(f"{self.run_dir} already holds a run: continue it with MASFOLS.load")
+                self.run_dir.write_config(self.run_info)
+            self.runner.set_logger(self.run_dir.make_logger())  # continues logs/ where the checkpoint left it
+            return self._learn(max_iterations, callback, progress_bar)
+
+    def _learn(self, max_iterations: int | None, callback: MaybeCallback, progress_bar: bool) -> MASFOLS:
         self.callback.max_iterations = max_iterations
         self.callback.progress_bar = progress_bar
         steps = self.callback.steps_per_iteration

@@ -18,7 +18,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
-from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, check_n_critics, observation_radices
+from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, observation_radices
 
 _ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
 
@@ -46,18 +46,23 @@ def network_spec(net: nn.Module) -> dict[str, Any]:
             "net_arch": list(net.net_arch),
             "activation_fn": net.activation_fn.__name__,
             "normalize_images": bool(net.normalize_images),
-            "n_critics": net.n_critics,
         }
     raise ValueError(f"not an SF network: {type(net).__name__}")
 
 
-def _n_critics(spec: dict[str, Any]) -> int:
+def _check_one_head(spec: dict[str, Any]) -> None:
     """
-    The number of heads of an MLP spec (1 where it does not say: files of versions before ``n_critics``).
+    Refuse the spec of a multi-head MLP. Versions that had them wrote ``n_critics``: ``1``, the plain network, loads
+    as a spec without the key does.
 
-    :raises ValueError: not an integer in ``[1, MAX_CRITICS]``
+    :raises ValueError: ``n_critics`` other than 1
     """
-    return check_n_critics(spec.get("n_critics", 1))
+    n_critics = spec.get("n_critics", 1)
+    if type(n_critics) is not int or n_critics != 1:  # not True, not 1.0
+        raise ValueError(
+            f"the network spec has n_critics={n_critics!r}: multi-head (pessimistic) SF networks were removed in this "
+            "version; only n_critics=1 loads"
+        )
 
 
 def build_network(
@@ -74,6 +79,7 @@ def build_network(
         if spec.get("activation_fn") not in _ACTIVATIONS:
             known = sorted(_ACTIVATIONS)
             raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {known}")
+        _check_one_head(spec)
         extractor = FlattenExtractor(observation_space)
         return SFNetwork(
             observation_space,
@@ -84,7 +90,6 @@ def build_network(
             net_arch=[int(n) for n in spec["net_arch"]],
             activation_fn=_ACTIVATIONS[spec["activation_fn"]],
             normalize_images=bool(spec.get("normalize_images", True)),
-            n_critics=_n_critics(spec),
         )
     raise ValueError(f"unknown network kind {spec.get('kind')!r}")
 
@@ -102,8 +107,9 @@ def declared_bytes(
         _, n_values = observation_radices(observation_space)
         return int(np.prod(n_values.astype(np.float64))) * outputs * 4
     if spec.get("kind") == "mlp":
+        _check_one_head(spec)
         sizes = [spaces.flatdim(observation_space), *[int(n) for n in spec["net_arch"]], outputs]
-        return sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes)) * 4 * _n_critics(spec)
+        return sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes)) * 4
     raise ValueError(f"unknown network kind {spec.get('kind')!r}")
 
 

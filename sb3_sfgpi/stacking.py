@@ -63,24 +63,21 @@ class StackedTables:
 
 class StackedMLP:
     """
-    MLP SF networks stacked layer by layer: weights ``(P·K, in, out)``, biases ``(P·K, 1, out)`` for ``P`` networks of
-    ``K`` heads (``n_critics``) each.
+    MLP SF networks stacked layer by layer: weights ``(P, in, out)``, biases ``(P, 1, out)`` for ``P`` networks.
 
     The features extractor has no parameters, so the features are computed once and shared; each ``Linear``
-    of the ``P·K`` heads is then one ``baddbmm``, and a network's ``ψ`` the element-wise minimum of its heads'.
+    of the ``P`` networks is then one ``baddbmm``.
     """
 
     def __init__(self, networks: list[SFNetwork]):
         first = networks[0]
         self.first = first
         self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
-        self.n_critics = first.n_critics
-        heads = [head for net in networks for head in net.heads]  # policy-major
         self.layers: list[tuple[th.Tensor, th.Tensor] | nn.Module] = []
         with th.no_grad():
             for i, module in enumerate(first.sf_net):
                 if isinstance(module, nn.Linear):
-                    linears = [head[i] for head in heads]
+                    linears = [net.sf_net[i] for net in networks]
                     weight = th.stack([lin.weight.transpose(0, 1) for lin in linears]).contiguous()
                     bias = th.stack([lin.bias for lin in linears]).unsqueeze(1)
                     self.layers.append((weight, bias))
@@ -90,13 +87,13 @@ class StackedMLP:
     @staticmethod
     def supports(net: nn.Module) -> bool:
         """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
-        if not isinstance(net, SFNetwork) or not all(isinstance(head, nn.Sequential) for head in net.heads):
+        if not isinstance(net, SFNetwork) or not isinstance(net.sf_net, nn.Sequential):
             return False
         extractor = net.features_extractor
         if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):
             return False
         allowed = tuple(_ACTIVATIONS.values())
-        for module in (module for head in net.heads for module in head):
+        for module in net.sf_net:
             if isinstance(module, nn.Linear):
                 if module.bias is None:
                     return False
@@ -106,16 +103,13 @@ class StackedMLP:
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         features = self.first.extract_features(obs_tensor, self.first.features_extractor)
-        n_policies, n_critics = self.n_policies, self.n_critics
-        x = features.unsqueeze(0).expand(n_policies * n_critics, *features.shape)
+        x = features.unsqueeze(0).expand(self.n_policies, *features.shape)
         for layer in self.layers:
             if isinstance(layer, tuple):
                 x = th.baddbmm(layer[1], x, layer[0])
             else:
                 x = layer(x)
-        if n_critics == 1:
-            return x.view(n_policies, -1, self.n_actions, self.reward_dim)
-        return x.view(n_policies, n_critics, -1, self.n_actions, self.reward_dim).amin(dim=1)
+        return x.view(self.n_policies, -1, self.n_actions, self.reward_dim)
 
 
 class StackedVmap:

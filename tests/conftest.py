@@ -77,14 +77,9 @@ def silent_logger() -> Logger:
 
 
 def random_mlp_network(
-    seed: int,
-    obs_dim: int = 4,
-    n_actions: int = 3,
-    reward_dim: int = 3,
-    net_arch: Sequence[int] = (16, 16),
-    n_critics: int = 1,
+    seed: int, obs_dim: int = 4, n_actions: int = 3, reward_dim: int = 3, net_arch: Sequence[int] = (16, 16)
 ) -> SFNetwork:
-    """A randomly initialised MLP SF network on ``Box(-1, 1, (obs_dim,))`` (seeded), with ``n_critics`` heads."""
+    """A randomly initialised MLP SF network on ``Box(-1, 1, (obs_dim,))`` (seeded)."""
     th.manual_seed(seed)
     observation_space = spaces.Box(-1.0, 1.0, shape=(obs_dim,), dtype=np.float32)
     extractor = FlattenExtractor(observation_space)
@@ -95,7 +90,6 @@ def random_mlp_network(
         extractor.features_dim,
         reward_dim,
         net_arch=list(net_arch),
-        n_critics=n_critics,
     )
 
 

@@ -126,3 +126,27 @@ def test_a_refused_train_leaves_no_directory_behind(tmp_path, argv):
     out = tmp_path / "new"
     assert main([*TRAIN, "--no-progress", "--out", str(out), *argv]) == 2
     assert not out.exists()
+
+
+def test_masfols_learn_holds_the_lock_too(tmp_path):
+    """The API's writer is refused as the command line's is, and writes nothing."""
+    from sb3_sfgpi import MASFOLS, EvaluationConfig
+    from sfgpi_envs import FourRoomParallelEnv
+
+    out = tmp_path / "run"
+    holder = hold_lock(out)
+    try:
+        model = MASFOLS(
+            FourRoomParallelEnv(max_steps=30),
+            steps_per_iteration=100,
+            evaluation=EvaluationConfig(test_weights=2),
+            run_dir=out,
+        )
+        with pytest.raises(RunDirectoryBusy, match=f"pid {holder.pid} on "):
+            model.learn(max_iterations=1)
+        assert sorted(p.name for p in out.iterdir()) == [".lock"]
+    finally:
+        holder.kill()
+        holder.wait()
+    model.learn(max_iterations=1)
+    assert RunDirectory(out).read_checkpoint()["iteration"] == 1

@@ -20,19 +20,6 @@ from sb3_sfgpi.common.weights import weighted_sum
 
 #: Largest table :class:`TabularSFNetwork` builds (number of observation values).
 MAX_TABLE_STATES = 50_000_000
-#: Most heads an :class:`SFNetwork` takes (``n_critics``).
-MAX_CRITICS = 16
-
-
-def check_n_critics(n_critics: Any) -> int:
-    """
-    :param n_critics: a number of heads of an :class:`SFNetwork`
-    :return: it, checked
-    :raises ValueError: not an integer in ``[1, MAX_CRITICS]``
-    """
-    if isinstance(n_critics, bool) or not isinstance(n_critics, int) or not 1 <= n_critics <= MAX_CRITICS:
-        raise ValueError(f"n_critics must be an integer in [1, {MAX_CRITICS}], got {n_critics!r}")
-    return n_critics
 
 
 def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
@@ -92,13 +79,7 @@ def argmax_random_ties(q_values: np.ndarray, rng: np.random.Generator | Any = np
 
 class SFNetwork(BasePolicy):
     """
-    MLP successor-feature network, with one or more heads.
-
-    With ``n_critics > 1`` the network holds that many separate MLPs ("critics", as SB3's TD3 and SAC) on the same
-    features, trained toward the same targets, and ``ψ`` is their element-wise minimum: a pessimistic estimate
-    (as TD3's clipped double Q and GPI-PD's ensemble minimum). For weights ``w >= 0`` (the simplex),
-    ``w · ψ_min <= w · ψ_k`` for every head ``k``, so where the heads disagree (off the data, where one overestimates)
-    GPI trusts the lower one.
+    MLP successor-feature network: features, then one MLP (``sf_net``) to ``ψ(s, ·)``.
 
     :param observation_space: Observation space
     :param action_space: Action space (Discrete)
@@ -108,7 +89,6 @@ class SFNetwork(BasePolicy):
     :param net_arch: Hidden layer sizes
     :param activation_fn: Activation function
     :param normalize_images: Whether to divide images by 255
-    :param n_critics: Number of heads; ``ψ`` is their element-wise minimum
     """
 
     action_space: spaces.Discrete
@@ -123,9 +103,7 @@ class SFNetwork(BasePolicy):
         net_arch: list[int] | None = None,
         activation_fn: type[nn.Module] = nn.ReLU,
         normalize_images: bool = True,
-        n_critics: int = 1,
     ):
-        check_n_critics(n_critics)
         super().__init__(
             observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
         )
@@ -134,39 +112,17 @@ class SFNetwork(BasePolicy):
         self.features_dim = features_dim
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
-        self.n_critics = n_critics
-        self.sf_net = self._make_head()
-        # the heads beyond the first (none by default: a one-head network keeps the state dict of earlier versions)
-        self.other_critics = nn.ModuleList(self._make_head() for _ in range(n_critics - 1))
-
-    def _make_head(self) -> nn.Sequential:
-        return nn.Sequential(
+        self.sf_net = nn.Sequential(
             *create_mlp(self.features_dim, self.n_actions * self.reward_dim, self.net_arch, self.activation_fn)
         )
-
-    @property
-    def heads(self) -> list[nn.Module]:
-        """The ``n_critics`` MLPs, the first (``sf_net``) first."""
-        return [self.sf_net, *self.other_critics]
-
-    def forward_heads(self, obs: PyTorchObs) -> th.Tensor:
-        """
-        :param obs: Observation batch
-        :return: ``ψ(s, ·)`` of every head, shape ``(n_critics, batch, n_actions, d)``
-        """
-        features = self.extract_features(obs, self.features_extractor)
-        psi = th.stack([head(features) for head in self.heads])
-        return psi.view(self.n_critics, -1, self.n_actions, self.reward_dim)
 
     def forward(self, obs: PyTorchObs) -> th.Tensor:
         """
         :param obs: Observation batch
-        :return: ``ψ(s, ·)``, the element-wise minimum over the heads, shape ``(batch, n_actions, d)``
+        :return: ``ψ(s, ·)``, shape ``(batch, n_actions, d)``
         """
-        if not self.other_critics:
-            features = self.extract_features(obs, self.features_extractor)
-            return self.sf_net(features).view(-1, self.n_actions, self.reward_dim)
-        return self.forward_heads(obs).amin(dim=0)
+        features = self.extract_features(obs, self.features_extractor)
+        return self.sf_net(features).view(-1, self.n_actions, self.reward_dim)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         raise NotImplementedError("an SF network has no weights: use SFDQNPolicy or GPIPolicy to act")
@@ -179,7 +135,6 @@ class SFNetwork(BasePolicy):
             reward_dim=self.reward_dim,
             activation_fn=self.activation_fn,
             features_extractor=self.features_extractor,
-            n_critics=self.n_critics,
         )
         return data
 

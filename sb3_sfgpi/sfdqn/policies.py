@@ -45,8 +45,6 @@ class SFDQNPolicy(BasePolicy):
     :param normalize_images: Whether to divide images by 255
     :param optimizer_class: The optimizer, Adam by default
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate
-    :param n_critics: Number of SF heads, all trained toward the same targets; ``ψ`` is their element-wise minimum
-        (pessimism against overestimation off the data; see :class:`~sb3_sfgpi.sfdqn.networks.SFNetwork`)
     """
 
     sf_net: nn.Module
@@ -65,7 +63,6 @@ class SFDQNPolicy(BasePolicy):
         normalize_images: bool = True,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
-        n_critics: int = 1,
     ):
         super().__init__(
             observation_space,
@@ -79,7 +76,6 @@ class SFDQNPolicy(BasePolicy):
         self.reward_dim = reward_dim
         self.net_arch = [64, 64] if net_arch is None else list(net_arch)
         self.activation_fn = activation_fn
-        self.n_critics = n_critics
         self.register_buffer("weights", th.full((reward_dim,), 1.0 / reward_dim))
         self._build(lr_schedule)
 
@@ -104,7 +100,6 @@ class SFDQNPolicy(BasePolicy):
             net_arch=self.net_arch,
             activation_fn=self.activation_fn,
             normalize_images=self.normalize_images,
-            n_critics=self.n_critics,
         ).to(self.device)
 
     def forward(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
@@ -158,9 +153,8 @@ class SFDQNPolicy(BasePolicy):
     ) -> float:
         """
         One gradient step on a sampled batch, towards ``r + γ (1 − terminated) ψ_target(s', a*)`` with
-        ``a* = argmax_a w · ψ(s', a)`` (online network picks, target network evaluates; with several heads both are
-        their element-wise minimum, and every head moves toward the one target), Huber loss averaged over batch and
-        objectives (summed over heads), gradient norm clipped.
+        ``a* = argmax_a w · ψ(s', a)`` (online network picks, target network evaluates), Huber loss averaged
+        over batch and objectives, gradient norm clipped.
 
         :param replay_buffer: where to sample from
         :param batch_size: number of transitions
@@ -176,8 +170,8 @@ class SFDQNPolicy(BasePolicy):
             next_actions = greedy_actions(next_online, self.weights)
             next_psi = next_online if self.sf_net_target is self.sf_net else self.sf_net_target(batch.next_observations)
             target_psi = batch.rewards + (1 - batch.dones) * gamma * next_psi[rows, next_actions]
-        current_psi = self.sf_net.forward_heads(batch.observations)[:, rows, batch.actions.long().flatten()]
-        loss = F.smooth_l1_loss(current_psi, target_psi.expand_as(current_psi)) * len(current_psi)
+        current_psi = self.sf_net(batch.observations)[rows, batch.actions.long().flatten()]
+        loss = F.smooth_l1_loss(current_psi, target_psi)
         self.optimizer.zero_grad()
         loss.backward()
         th.nn.utils.clip_grad_norm_(self.sf_net.parameters(), max_grad_norm)
@@ -220,7 +214,6 @@ class SFDQNPolicy(BasePolicy):
             optimizer_kwargs=self.optimizer_kwargs,
             features_extractor_class=self.features_extractor_class,
             features_extractor_kwargs=self.features_extractor_kwargs,
-            n_critics=self.n_critics,
         )
         return data
 
