@@ -9,6 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from sfgpi_envs import FourRoomParallelEnv
+
+from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.run_directory import RunDirectory, RunDirectoryBusy
 
@@ -130,9 +133,6 @@ def test_a_refused_train_leaves_no_directory_behind(tmp_path, argv):
 
 def test_masfols_learn_holds_the_lock_too(tmp_path):
     """The API's writer is refused as the command line's is, and writes nothing."""
-    from sb3_sfgpi import MASFOLS, EvaluationConfig
-    from sfgpi_envs import FourRoomParallelEnv
-
     out = tmp_path / "run"
     holder = hold_lock(out)
     try:
