@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from sfgpi_envs import FourRoomParallelEnv
 
 from sb3_sfgpi import MASFOLS, EvaluationConfig
