@@ -1,9 +1,9 @@
 """Sweeps on a local Ray vs a plain loop: 8 tiny Four-Room runs; and the Fig. 4 runs (``run_fig4``).
 
-The loop trains the runs one after another in this process (:func:`~sb3_sfgpi.sweep.train_run`, what a sweep's task
-does); the sweep starts a local Ray with the machine's cores, runs them as tasks and shuts Ray down. The runs are
-small (a few seconds each), so the ratio shows the sweep's overhead (starting Ray and a worker process per run)
-against its parallelism.
+The loop trains the runs one after another in this process (:func:`~sb3_sfgpi.cli.sweep_runner.train_run`, what a
+sweep's task does); the sweep starts a local Ray with the machine's cores, runs them as tasks and shuts Ray down. The
+runs are small (a few seconds each), so the ratio shows the sweep's overhead (starting Ray and a worker process per
+run) against its parallelism.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from benchmarks._common import Row
-from sb3_sfgpi.sweep import RunSpec, grid, run_sweep, train_run
+from sb3_sfgpi.cli.sweep_runner import RunSpec, grid, run_sweep, train_run
 
 #: About 3 s per run on one core: short episodes, two small iterations, two test weights, no validation.
 TINY = ("--env", "max_steps=30", "--iterations", "2", "--steps-per-iteration", "1000",

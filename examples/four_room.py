@@ -26,11 +26,11 @@ import numpy as np
 
 from sb3_sfgpi.cli.plot import a_priori_reference, final_test_returns, own_weight_return
 from sb3_sfgpi.cli.presets import load_domain
+from sb3_sfgpi.cli.sweep_runner import RunSpec, run_sweep
 from sb3_sfgpi.common.weights import format_weights, random_weights, same_weight
 from sb3_sfgpi.multiagent import SHARINGS
 from sb3_sfgpi.plots import align_runs, ols_ended
 from sb3_sfgpi.run_directory import RunDirectory
-from sb3_sfgpi.sweep import RunSpec, run_sweep
 
 ALGORITHMS = ("ma-sfols", "random")
 """The two curves of Fig. 4."""

@@ -14,9 +14,9 @@
    GPI at w = [1, 0] waits no longer than actuated for vehicles, and GPI is within 5% of the scalarised
    learners at their weights.
 
-The training runs go through ``sb3_sfgpi.sweep`` (a local Ray, or the cluster at ``--address``): first the MA-SFOLS
-runs of all seeds, then the scalarised learners of all seeds (their budget is their seed's MA-SFOLS run). Runs that
-already exist are resumed (finished ones are skipped), so the script can be interrupted and re-run.
+The training runs go through ``sb3_sfgpi.cli.sweep_runner`` (a local Ray, or the cluster at ``--address``): first the
+MA-SFOLS runs of all seeds, then the scalarised learners of all seeds (their budget is their seed's MA-SFOLS run).
+Runs that already exist are resumed (finished ones are skipped), so the script can be interrupted and re-run.
 
 Example (the defaults; about two hours on two cores)::
 
@@ -34,8 +34,8 @@ import numpy as np
 
 from sb3_sfgpi.cli import load_domain, main
 from sb3_sfgpi.cli.compare import format_comparison, merge_comparisons
+from sb3_sfgpi.cli.sweep_runner import RunSpec, run_sweep
 from sb3_sfgpi.run_directory import RunDirectory
-from sb3_sfgpi.sweep import RunSpec, run_sweep
 
 
 def _run(argv: list[str]) -> None:

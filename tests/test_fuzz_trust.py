@@ -18,8 +18,8 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from sb3_sfgpi.cli import main, parse_args
+from sb3_sfgpi.cli.sweep_runner import RESERVED_OPTIONS, check_run_name, read_spec
 from sb3_sfgpi.sfdqn import SFDQN
-from sb3_sfgpi.sweep import RESERVED_OPTIONS, check_run_name, read_spec
 
 EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "0"))
 FUZZ = settings(

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from sb3_sfgpi.cli import main
-from sb3_sfgpi.sweep import RunSpec, grid, read_spec, run_sweep, train_run
+from sb3_sfgpi.cli.sweep_runner import RunSpec, grid, read_spec, run_sweep, train_run
 
 #: Four-room runs of a few seconds: short episodes, small iterations, few test weights, no validation.
 TINY = (

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from sb3_sfgpi.cli import main
-from sb3_sfgpi.sweep import RunSpec, read_spec, run_sweep
+from sb3_sfgpi.cli.sweep_runner import RunSpec, read_spec, run_sweep
 
 TINY = [
     "--env",
@@ -70,7 +70,7 @@ def test_train_itself_takes_no_abbreviated_option(tmp_path, capsys):
 
 
 def test_a_run_whose_options_train_refuses_fails_at_once_and_is_not_retried(tmp_path):
-    from sb3_sfgpi.sweep import train_run
+    from sb3_sfgpi.cli.sweep_runner import train_run
 
     with pytest.raises(ValueError, match="train refused its arguments"):
         train_run(RunSpec("four-room", options=["--no-such-option"]), tmp_path / "run")

@@ -8,7 +8,7 @@ from typing import Any
 
 from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
 from sb3_sfgpi.cli.presets import WEIGHT_HELP
-from sb3_sfgpi.sweep import ALGORITHMS, RunOutcome, grid, read_spec, run_sweep
+from sb3_sfgpi.cli.sweep_runner import ALGORITHMS, RunOutcome, grid, read_spec, run_sweep
 
 
 def add_parser(sub: Any) -> None:
@@ -27,7 +27,9 @@ def add_parser(sub: Any) -> None:
         "--w", type=float, nargs="+", action="append", default=[], help=f"weights of --algos fixed (repeat for more; "
         f"{WEIGHT_HELP})",
     )  # fmt: skip
-    sweep.add_argument("--spec", type=Path, help="a JSON sweep file instead of the grid options (see sb3_sfgpi.sweep)")
+    sweep.add_argument(
+        "--spec", type=Path, help="a JSON sweep file instead of the grid options (see sb3_sfgpi.cli.sweep_runner)"
+    )
     sweep.add_argument("--out", type=Path, required=True, help="the sweep's directory: one run directory per run")
     sweep.add_argument(
         "--address", help="join this Ray cluster (default: RAY_ADDRESS, else a local Ray with --num-cpus CPUs)"
