@@ -21,15 +21,11 @@ beyond its counts (left by an iteration that was killed) are ignored.
 from __future__ import annotations
 
 import csv
-import fcntl
 import io
 import json
-import os
 import shutil
-import socket
 import tempfile
 from collections.abc import Callable, Sequence
-from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +35,7 @@ from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoard
 
 from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json, read_json
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
+from sb3_sfgpi.run_lock import RunDirectoryBusy, RunLock, check_not_written
 from sb3_sfgpi.trust import check_learner_kwargs
 
 #: The columns of ``evaluation.csv``, in order.
@@ -112,77 +109,8 @@ _SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
 
 #: Files that may be in a run directory before its ``run.json`` (the lock, a sweep's record and log).
 _BEFORE_RUN = {".lock", "sweep.json", "train.log"}
-#: The locks this process holds: resolved path -> [file descriptor, number of holders] (a lock is re-entrant).
-_HELD: dict[Path, list[int]] = {}
 
-
-class RunDirectoryBusy(ValueError):
-    """Another process writes the run directory (it holds the directory's lock)."""
-
-
-class RunLock:
-    """
-    The writer's lock of a run directory: ``fcntl.flock`` on its ``.lock`` file, which names the holder (pid, host,
-    command). The kernel releases it when the holder's process ends, however it ends (no stale lock after SIGKILL).
-    Re-entrant within a process. Released by :meth:`release` or when the object is collected.
-    """
-
-    def __init__(self, path: Path, command: str):
-        self.path = path.resolve()
-        self._held = False
-        self.path.mkdir(parents=True, exist_ok=True)
-        if self.path in _HELD:
-            _HELD[self.path][1] += 1
-            self._held = True
-            return
-        fd = os.open(self.path / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 4096).decode(errors="replace")
-            os.close(fd)
-            raise RunDirectoryBusy(f"{path} is being written by another process ({_holder(holder)})") from None
-        os.ftruncate(fd, 0)
-        holder = {"pid": os.getpid(), "host": socket.gethostname(), "command": command}
-        os.write(fd, json.dumps(holder).encode())
-        _HELD[self.path] = [fd, 1]
-        self._held = True
-
-    def release(self) -> None:
-        """Release the lock (this holder's share of it); a no-op the second time."""
-        if not self._held:
-            return
-        self._held = False
-        held = _HELD[self.path]
-        held[1] -= 1
-        if held[1] == 0:
-            del _HELD[self.path]
-            os.close(held[0])  # closing the descriptor releases the lock; the file stays (no unlink race)
-
-    def discard(self) -> None:
-        """Release the lock and remove its file (the directory was made for a run that was then refused)."""
-        if self._held and _HELD[self.path][1] == 1:
-            with suppress(OSError):
-                (self.path / ".lock").unlink()
-        self.release()
-
-    def __enter__(self) -> RunLock:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
-
-    def __del__(self) -> None:
-        self.release()
-
-
-def _holder(text: str) -> str:
-    """The holder named in a lock file, as one line."""
-    try:
-        holder = json.loads(text)
-        return f"pid {holder['pid']} on {holder['host']}: {holder['command']}"
-    except (ValueError, KeyError, TypeError):
-        return "a process that has not named itself yet"
+__all__ = ["RunDirectory", "RunDirectoryBusy", "RunLock", "summary_scalars"]
 
 
 class RunDirectory:
@@ -261,15 +189,7 @@ class RunDirectory:
             return
         if not self.path.is_dir():
             raise ValueError(f"{self.path} is not a directory")
-        if (self.path / ".lock").is_file():
-            with open(self.path / ".lock", "rb") as handle:
-                try:
-                    fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
-                    fcntl.flock(handle, fcntl.LOCK_UN)
-                except BlockingIOError:
-                    if self.path.resolve() not in _HELD:
-                        holder = _holder(handle.read(4096).decode(errors="replace"))
-                        raise RunDirectoryBusy(f"{self.path} is being written by another process ({holder})") from None
+        check_not_written(self.path)
         others = sorted(p.name for p in self.path.iterdir() if p.name not in _BEFORE_RUN)
         if not others:
             return
