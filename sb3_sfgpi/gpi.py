@@ -24,7 +24,6 @@ previous manifest or has none. Loading never runs code from the directory.
 from __future__ import annotations
 
 import copy
-import io
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -40,34 +39,15 @@ from torch import nn
 from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.rollouts import JointPolicy
-from sb3_sfgpi.common.serialization import (
-    atomic_write_bytes,
-    atomic_write_json,
-    read_json,
-    space_from_dict,
-    space_to_dict,
-)
 from sb3_sfgpi.common.weights import validate_weights, weighted_sum
 from sb3_sfgpi.ols import OLS
-from sb3_sfgpi.policy_files import (
-    CorruptPolicySetError,
-    build_network,
-    declared_bytes,
-    file_state,
-    memory_budget,
-    network_spec,
-    network_state,
-    read_state_dict,
-)
+from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_spec
+from sb3_sfgpi.policy_set_files import MANIFEST, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap, stack_networks
 
-__all__ = ["CorruptPolicySetError", "GPIPolicy", "PolicyInfo"]
-
-FORMAT = "sb3-sfgpi/policy-set"
-VERSION = 1
-MANIFEST = "manifest.json"
+__all__ = ["MANIFEST", "CorruptPolicySetError", "GPIPolicy", "PolicyInfo"]
 
 
 @dataclass(frozen=True)
@@ -97,17 +77,6 @@ class PolicyInfo:
             "iteration": self.iteration,
             "retired": self.retired,
         }
-
-
-def _check_memory(n_policies: int, network_bytes: int) -> None:
-    """Refuse a manifest whose policies would take more than half of this machine's memory, before allocating."""
-    budget = memory_budget()
-    if budget is not None and n_policies * network_bytes > budget:
-        raise ValueError(
-            f"the manifest asks for {n_policies} policies of {network_bytes / 1e6:.1f} MB each "
-            f"({n_policies * network_bytes / 1e9:.1f} GB), more than half of this machine's memory "
-            f"({2 * budget / 1e9:.1f} GB)"
-        )
 
 
 class GPIPolicy:
@@ -439,29 +408,8 @@ class GPIPolicy:
         :param path: the directory (created if needed)
         """
         self._check_saveable()
-        directory = Path(path)
-        directory.mkdir(parents=True, exist_ok=True)
-        entries = []
-        for i, (net, info) in enumerate(zip(self.networks, self.infos, strict=True)):
-            file = f"policy_{i:03d}.pt"
-            # Each file is replaced atomically too: an interrupted save leaves the previous set loadable.
-            buffer = io.BytesIO()
-            th.save(file_state(net), buffer)
-            atomic_write_bytes(directory / file, buffer.getvalue())
-            entries.append(info.to_dict(file))
-        first = self._first()
-        atomic_write_json(
-            directory / MANIFEST,
-            {
-                "format": FORMAT,
-                "version": VERSION,
-                "reward_dim": int(first.reward_dim),
-                "observation_space": space_to_dict(first.observation_space),
-                "action_space": space_to_dict(first.action_space),
-                "network": network_spec(first),
-                "policies": entries,
-            },
-        )
+        entries = [info.to_dict(f"policy_{i:03d}.pt") for i, info in enumerate(self.infos)]
+        write_policy_set(Path(path), self.networks, entries, self._first())
 
     def _check_saveable(self) -> None:
         """Refuse to save what :meth:`load` would refuse: non-finite SFs, values or weights, or an empty set."""
@@ -488,45 +436,19 @@ class GPIPolicy:
         :raises CorruptPolicySetError: a missing, truncated, inconsistent or foreign directory
         :raises ValueError: a tabular set on a device other than the CPU
         """
-        directory = Path(path)
+        policy_set = cls(device="cpu")
         try:
-            manifest = read_json(directory / MANIFEST, "policy-set manifest")
-            if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-                raise ValueError(f"{directory / MANIFEST} is not an sb3-sfgpi policy-set manifest")
-            if type(manifest.get("version")) is not int or manifest["version"] != VERSION:  # not true, not 1.0
-                raise ValueError(f"unsupported policy-set version {manifest.get('version')!r} (expected {VERSION})")
-            reward_dim = int(manifest["reward_dim"])
-            observation_space = space_from_dict(manifest["observation_space"])
-            action_space = space_from_dict(manifest["action_space"])
-            if not isinstance(action_space, spaces.Discrete):
-                raise ValueError(f"the action space must be Discrete, got {action_space}")
-            if not isinstance(manifest["network"], dict) or not isinstance(manifest["policies"], list):
-                raise ValueError("the manifest's 'network' must be an object and its 'policies' a list")
-            policy_set = cls(device="cpu")
-            files = [entry["file"] for entry in manifest["policies"]]
-            if len(set(files)) != len(files):
-                raise ValueError("the manifest lists a policy file more than once")
-            _check_memory(len(files), declared_bytes(manifest["network"], observation_space, action_space, reward_dim))
-            for entry in manifest["policies"]:
-                if entry.get("value") is not None and not np.isfinite(np.asarray(entry["value"], dtype=float)).all():
-                    raise ValueError(f"the value of {entry['file']!r} is not finite")
-                left = entry.get("retired")
-                if left is not None and (isinstance(left, bool) or not isinstance(left, int) or left < 1):
-                    raise ValueError(f"'retired' of {entry['file']!r} must be null or an iteration, got {left!r}")
-                if left is not None and not retired:
-                    continue
-                net = build_network(manifest["network"], observation_space, action_space, reward_dim)
-                net.load_state_dict(network_state(net, read_state_dict(directory, entry["file"])))
+            for net, entry in read_policy_set(Path(path), retired):
                 policy_set.add(
                     net,
                     weights=entry["weights"],
                     value=entry.get("value"),
                     agent=entry.get("agent"),
                     iteration=entry.get("iteration"),
-                    retired=left,
+                    retired=entry.get("retired"),
                 )
         except CorruptPolicySetError:
             raise
         except (KeyError, TypeError, ValueError, RuntimeError) as error:
-            raise CorruptPolicySetError(f"cannot load the policy set in {directory}: {error}") from error
+            raise CorruptPolicySetError(f"cannot load the policy set in {path}: {error}") from error
         return policy_set.to(device)

@@ -1,0 +1,135 @@
+"""A policy-set directory: ``manifest.json`` and one tensors-only file per policy, written and read back checked.
+
+The manifest holds the format and version, the objectives' number, the spaces, the network architecture and one
+entry per policy (its file, weights, value, agent, iteration, and when validation retired it). Every file is
+replaced atomically, so an interrupted save leaves the previous set loadable. Reading never runs code: paths stay
+inside the directory, shapes and values are checked, and a set that would need more than half of the machine's
+memory is refused before anything is allocated.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from torch import nn
+
+from sb3_sfgpi.common.serialization import (
+    atomic_write_bytes,
+    atomic_write_json,
+    read_json,
+    space_from_dict,
+    space_to_dict,
+)
+from sb3_sfgpi.policy_files import (
+    CorruptPolicySetError,
+    build_network,
+    declared_bytes,
+    file_state,
+    memory_budget,
+    network_spec,
+    network_state,
+    read_state_dict,
+)
+
+FORMAT = "sb3-sfgpi/policy-set"
+VERSION = 1
+MANIFEST = "manifest.json"
+
+
+def write_policy_set(
+    directory: Path, networks: Sequence[nn.Module], entries: Sequence[dict[str, Any]], first: Any
+) -> None:
+    """
+    Write the policy files, then the manifest.
+
+    :param networks: the SF networks, one per policy
+    :param entries: the manifest's entry of each (``"file"`` names its file)
+    :param first: the first policy's network (its spaces, objectives and architecture describe the set)
+    """
+    directory.mkdir(parents=True, exist_ok=True)
+    for net, entry in zip(networks, entries, strict=True):
+        buffer = io.BytesIO()
+        th.save(file_state(net), buffer)
+        atomic_write_bytes(directory / entry["file"], buffer.getvalue())
+    atomic_write_json(
+        directory / MANIFEST,
+        {
+            "format": FORMAT,
+            "version": VERSION,
+            "reward_dim": int(first.reward_dim),
+            "observation_space": space_to_dict(first.observation_space),
+            "action_space": space_to_dict(first.action_space),
+            "network": network_spec(first),
+            "policies": list(entries),
+        },
+    )
+
+
+def read_policy_set(directory: Path, retired: bool) -> list[tuple[nn.Module, dict[str, Any]]]:
+    """
+    The networks of a policy-set directory with their manifest entries, checked.
+
+    :param retired: also the policies that validation retired (default of the caller: Π's members only)
+    :raises CorruptPolicySetError: a missing, truncated, inconsistent or foreign directory
+    """
+    try:
+        manifest = _read_manifest(directory)
+        observation_space = space_from_dict(manifest["observation_space"])
+        action_space = space_from_dict(manifest["action_space"])
+        if not isinstance(action_space, spaces.Discrete):
+            raise ValueError(f"the action space must be Discrete, got {action_space}")
+        reward_dim = int(manifest["reward_dim"])
+        files = [entry["file"] for entry in manifest["policies"]]
+        if len(set(files)) != len(files):
+            raise ValueError("the manifest lists a policy file more than once")
+        _check_memory(len(files), declared_bytes(manifest["network"], observation_space, action_space, reward_dim))
+        policies = []
+        for entry in manifest["policies"]:
+            if _checked_entry(entry) is not None and not retired:
+                continue
+            net = build_network(manifest["network"], observation_space, action_space, reward_dim)
+            net.load_state_dict(network_state(net, read_state_dict(directory, entry["file"])))
+            policies.append((net, entry))
+        return policies
+    except CorruptPolicySetError:
+        raise
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        raise CorruptPolicySetError(f"cannot load the policy set in {directory}: {error}") from error
+
+
+def _read_manifest(directory: Path) -> dict[str, Any]:
+    manifest = read_json(directory / MANIFEST, "policy-set manifest")
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise ValueError(f"{directory / MANIFEST} is not an sb3-sfgpi policy-set manifest")
+    if type(manifest.get("version")) is not int or manifest["version"] != VERSION:  # not true, not 1.0
+        raise ValueError(f"unsupported policy-set version {manifest.get('version')!r} (expected {VERSION})")
+    if not isinstance(manifest["network"], dict) or not isinstance(manifest["policies"], list):
+        raise ValueError("the manifest's 'network' must be an object and its 'policies' a list")
+    return manifest
+
+
+def _checked_entry(entry: dict[str, Any]) -> int | None:
+    """Check a policy's entry; return the iteration after which it was retired (None: in Π)."""
+    if entry.get("value") is not None and not np.isfinite(np.asarray(entry["value"], dtype=float)).all():
+        raise ValueError(f"the value of {entry['file']!r} is not finite")
+    left = entry.get("retired")
+    if left is not None and (isinstance(left, bool) or not isinstance(left, int) or left < 1):
+        raise ValueError(f"'retired' of {entry['file']!r} must be null or an iteration, got {left!r}")
+    return left
+
+
+def _check_memory(n_policies: int, network_bytes: int) -> None:
+    """Refuse a manifest whose policies would take more than half of this machine's memory, before allocating."""
+    budget = memory_budget()
+    if budget is not None and n_policies * network_bytes > budget:
+        raise ValueError(
+            f"the manifest asks for {n_policies} policies of {network_bytes / 1e6:.1f} MB each "
+            f"({n_policies * network_bytes / 1e9:.1f} GB), more than half of this machine's memory "
+            f"({2 * budget / 1e9:.1f} GB)"
+        )
