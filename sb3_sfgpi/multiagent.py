@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable, Mapping
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -23,7 +23,14 @@ from stable_baselines3.common.type_aliases import MaybeCallback, TrainFrequencyU
 from stable_baselines3.common.vec_env import VecEnv
 from tqdm.auto import tqdm
 
-from sb3_sfgpi.common.agent_views import AgentVecEnv, folderless_logger, remove_interrupted_logs
+from sb3_sfgpi.common.agent_views import (
+    AgentVecEnv,
+    Rows,
+    Transitions,
+    folderless_logger,
+    remove_interrupted_logs,
+    replaced,
+)
 from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
 from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import flattened, time_limit
@@ -49,41 +56,10 @@ def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
     return make
 
 
-class Transitions(NamedTuple):
-    """A joint step as one learner sees it: its live slots, their ``(copy, agent)`` keys, what the copies returned."""
-
-    agents: list[tuple[int, str]]
-    slots: list[int]
-    buffer_actions: np.ndarray
-    obs: dict[tuple[int, str], Any]
-    rewards: dict[tuple[int, str], Any]
-    terminations: dict[tuple[int, str], bool]
-    truncations: dict[tuple[int, str], bool]
-    infos: dict[tuple[int, str], dict]
-
-
-def _replaced(rows: np.ndarray, slots: list[int], values: np.ndarray) -> np.ndarray:
-    """A copy of ``rows`` with ``rows[slots] = values``."""
-    rows = rows.copy()
-    rows[slots] = values
-    return rows
-
-
 #: The name of the one learner all agents share (``sharing="shared"``).
 SHARED = "shared"
 #: How agents get their learners: one each, or one for all (:class:`MultiAgentRunner`'s ``sharing``).
 SHARINGS = ("independent", SHARED)
-
-
-class Rows(NamedTuple):
-    """Transitions as a replay buffer's ``add_rows`` takes them."""
-
-    obs: np.ndarray
-    next_obs: np.ndarray
-    actions: np.ndarray
-    rewards: np.ndarray
-    dones: np.ndarray
-    timeouts: np.ndarray
 
 
 class MultiAgentRunner:
@@ -293,7 +269,7 @@ class MultiAgentRunner:
                 self.views[name].current_obs = batched
             if name in self.learners:
                 learner = self.learners[name]
-                last = batched.copy() if whole else _replaced(learner._last_obs, rows, batched)  # type: ignore[arg-type]
+                last = batched.copy() if whole else replaced(learner._last_obs, rows, batched)  # type: ignore[arg-type]
                 learner._last_obs = learner._last_original_obs = last  # type: ignore[assignment]
 
     def step(self) -> bool:
@@ -359,7 +335,7 @@ class MultiAgentRunner:
         infos = [self._monitored_info(agent, step) for agent in step.agents]
         timeouts = np.array([info.get("TimeLimit.truncated", False) for info in infos])
         last_obs = learner._last_obs
-        learner._last_obs = next_obs if len(step.slots) == learner.n_envs else _replaced(last_obs, step.slots, next_obs)
+        learner._last_obs = next_obs if len(step.slots) == learner.n_envs else replaced(last_obs, step.slots, next_obs)
         return Rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts), infos
 
     def _learner_step(self, name: str, rows: Rows, infos: list[dict[str, Any]]) -> bool:

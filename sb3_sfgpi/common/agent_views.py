@@ -1,14 +1,15 @@
 """The views and logs of the multi-agent runner's learners: each learner's agents as a VecEnv, folderless loggers.
 
 The runner (:class:`~sb3_sfgpi.multiagent.MultiAgentRunner`) steps one shared ParallelEnv for all agents; each
-learner sees its agents through an :class:`AgentVecEnv`, which SB3 takes for the VecEnv it was built on.
+learner sees its agents through an :class:`AgentVecEnv`, which SB3 takes for the VecEnv it was built on, and is
+handed each joint step's :class:`Transitions` as the :class:`Rows` its replay buffer stores.
 """
 
 from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from pettingzoo import ParallelEnv
@@ -83,3 +84,34 @@ def remove_interrupted_logs(directory: str, log_name: str) -> None:
     for folder in Path(directory).glob(f"{log_name}_*"):
         if folder.name[len(log_name) + 1 :].isdigit() and folder.is_dir() and not folder.is_symlink():
             shutil.rmtree(folder)
+
+
+class Transitions(NamedTuple):
+    """A joint step as one learner sees it: its live slots, their ``(copy, agent)`` keys, what the copies returned."""
+
+    agents: list[tuple[int, str]]
+    slots: list[int]
+    buffer_actions: np.ndarray
+    obs: dict[tuple[int, str], Any]
+    rewards: dict[tuple[int, str], Any]
+    terminations: dict[tuple[int, str], bool]
+    truncations: dict[tuple[int, str], bool]
+    infos: dict[tuple[int, str], dict]
+
+
+def replaced(rows: np.ndarray, slots: list[int], values: np.ndarray) -> np.ndarray:
+    """A copy of ``rows`` with ``rows[slots] = values``."""
+    rows = rows.copy()
+    rows[slots] = values
+    return rows
+
+
+class Rows(NamedTuple):
+    """Transitions as a replay buffer's ``add_rows`` takes them."""
+
+    obs: np.ndarray
+    next_obs: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    dones: np.ndarray
+    timeouts: np.ndarray
