@@ -76,7 +76,7 @@ def read_policy_set(directory: Path, retired: bool) -> list[tuple[nn.Module, dic
     The networks of a policy-set directory with their manifest entries, checked.
 
     :param retired: also the policies that validation retired (default of the caller: Π's members only)
-    :raises CorruptPolicySetError: a missing, truncated, inconsistent or foreign directory
+    :raises ~sb3_sfgpi.policy_files.CorruptPolicySetError: a missing, truncated, inconsistent or foreign directory
     """
     try:
         manifest = _read_manifest(directory)
