@@ -26,10 +26,11 @@ def env_name(env: Any) -> str:
     return type(getattr(env, "unwrapped", env)).__name__
 
 
-def check_finite(value: Any, what: str, env: str, agent: Any, step: int) -> None:
+def check_finite(value: Any, what: str, env: Any, agent: Any, step: int) -> None:
     """
     Refuse a reward or an observation holding NaN or inf.
 
+    :param env: the env, or its name (named only in the error: nothing is computed for a finite value)
     :raises ValueError: "<env>, agent <agent>, step <step>: the <what> is not finite (...)"
     """
     values = value.values() if isinstance(value, Mapping) else (value,)
@@ -37,8 +38,9 @@ def check_finite(value: Any, what: str, env: str, agent: Any, step: int) -> None
         array = np.asarray(part)
         if array.dtype.kind in "fc" and not np.isfinite(array).all():
             shown = np.array2string(array.ravel()[:8], precision=4, separator=", ")
+            name = env if isinstance(env, str) else env_name(env)
             raise ValueError(
-                f"{env}, agent {agent}, step {step}: the {what} is not finite ({shown}); it was not stored (NaN or "
+                f"{name}, agent {agent}, step {step}: the {what} is not finite ({shown}); it was not stored (NaN or "
                 "inf would spread into every successor feature)"
             )
 
@@ -50,14 +52,13 @@ def check_parallel_reset(env: Any, copy: int, observations: Mapping[str, Any], k
     :param known: the agents the learners were made for (the env's ``possible_agents``)
     :raises ValueError: naming the env, the agent and the step (0)
     """
-    name = env_name(env)
     for agent, observation in observations.items():
         if agent not in known:
             raise ValueError(
-                f"{name}, agent {agent!r}, step 0 (reset of copy {copy}): not one of the env's possible_agents "
-                f"{sorted(known)}; every agent must be declared in possible_agents"
+                f"{env_name(env)}, agent {agent!r}, step 0 (reset of copy {copy}): not one of the env's "
+                f"possible_agents {sorted(known)}; every agent must be declared in possible_agents"
             )
-        check_finite(observation, "observation", name, repr(agent), 0)
+        check_finite(observation, "observation", env, repr(agent), 0)
 
 
 def check_parallel_step(env: Any, copy: int, acted: Collection[str], results: tuple, agents: Any, step: int) -> None:
@@ -70,20 +71,22 @@ def check_parallel_step(env: Any, copy: int, acted: Collection[str], results: tu
     :param agents: the env's agents after the step
     :raises ValueError: naming the env, the agent and the step
     """
-    name = env_name(env)
     observations, rewards, terminations, truncations = results[:4]
-    where = f"step {step}" + (f" of copy {copy}" if copy else "")
     for agent in {*observations, *rewards, *agents}:
         if agent not in acted:
             raise ValueError(
-                f"{name}, agent {agent!r}, {where}: in the step's results but it did not act (an agent that left "
-                "the episode must not come back in it, and only agents of possible_agents present at reset may act)"
+                f"{_where(env, agent, step, copy)}: in the step's results but it did not act (an agent that left the "
+                "episode must not come back in it, and only agents of possible_agents present at reset may act)"
             )
+    returned = (("observation", observations), ("reward", rewards), ("termination", terminations))
     for agent in acted:
-        for what, returned in (("observation", observations), ("reward", rewards), ("termination", terminations)):
-            if agent not in returned:
-                raise ValueError(f"{name}, agent {agent!r}, {where}: it acted but the step returned no {what} for it")
-        if agent not in truncations:
-            raise ValueError(f"{name}, agent {agent!r}, {where}: it acted but the step returned no truncation for it")
-        check_finite(rewards[agent], "reward", name, repr(agent), step)
-        check_finite(observations[agent], "observation", name, repr(agent), step)
+        for what, values in (*returned, ("truncation", truncations)):
+            if agent not in values:
+                raise ValueError(f"{_where(env, agent, step, copy)}: it acted but the step returned no {what} for it")
+        check_finite(rewards[agent], "reward", env, repr(agent), step)
+        check_finite(observations[agent], "observation", env, repr(agent), step)
+
+
+def _where(env: Any, agent: Any, step: int, copy: int) -> str:
+    """Where a check failed: the env, the agent, the step (and the copy of the env, after the first)."""
+    return f"{env_name(env)}, agent {agent!r}, step {step}" + (f" of copy {copy}" if copy else "")
