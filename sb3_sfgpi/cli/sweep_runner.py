@@ -155,8 +155,10 @@ def grid(
     """
     The runs of domains × algorithms × seeds; ``fixed`` makes one run per entry of ``weights``.
 
-    :raises ValueError: ``fixed`` without weights, weights without ``fixed``, or an invalid run
+    :raises ValueError: ``fixed`` without weights, weights without ``fixed``, options that are not a list of strings,
+        or an invalid run
     """
+    check_options(options)  # before tuple(): a string would become its characters
     if ("fixed" in algos) != bool(weights):
         raise ValueError("weights are for the algorithm 'fixed', and 'fixed' needs weights")
     return [
@@ -190,7 +192,6 @@ def read_spec(path: str | Path) -> list[RunSpec]:
         unknown = set(data) - {"domains", "algos", "seeds", "weights", "options"}
         if unknown:
             raise ValueError(f"unknown keys {sorted(unknown)}")
-        check_options(data.get("options", ()))
         return grid(data["domains"], data["algos"], data["seeds"], data.get("weights", ()), data.get("options", ()))
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"sweep file {path}: {error}") from error
