@@ -40,7 +40,7 @@ from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.rollouts import JointPolicy
 from sb3_sfgpi.common.weights import validate_weights, weighted_sum
-from sb3_sfgpi.ols import OLS
+from sb3_sfgpi.ols import OLS, TOLERANCE
 from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_spec
 from sb3_sfgpi.policy_set_files import MANIFEST, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
@@ -252,7 +252,7 @@ class GPIPolicy:
             raise ValueError(f"the policy set has no policy learned by agent {agent!r}")
         return self.subset(indices)
 
-    def ccs_policies(self, tolerance: float = 1e-6) -> GPIPolicy:
+    def ccs_policies(self, tolerance: float = TOLERANCE) -> GPIPolicy:
         """
         The policies whose value vectors ``V^π`` form the set's convex coverage set (CCS): those that are the best
         of the set, by more than ``tolerance``, for some weight (by :class:`~sb3_sfgpi.ols.OLS` over the stored

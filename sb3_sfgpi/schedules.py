@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from sb3_sfgpi.common.weights import random_weights, validate_weights
-from sb3_sfgpi.ols import OLS
+from sb3_sfgpi.ols import OLS, TOLERANCE
 
 #: agent -> the weights it trains for in the next iteration
 AgentWeights = dict[str, np.ndarray]
@@ -48,7 +48,7 @@ class WeightSchedule(ABC):
     #: whether every trained policy joins Π, or only those whose value is new
     keeps_every_policy: bool = False
 
-    def __init__(self, tolerance: float = 1e-6):
+    def __init__(self, tolerance: float = TOLERANCE):
         self.tolerance = tolerance
         self._ols: OLS | None = None
 
@@ -130,7 +130,7 @@ class OLSSchedule(WeightSchedule):
 
     kind = "ols"
 
-    def __init__(self, batch: str = "top", tolerance: float = 1e-6):
+    def __init__(self, batch: str = "top", tolerance: float = TOLERANCE):
         if batch not in OLS_BATCHES:
             raise ValueError(f"batch must be one of {OLS_BATCHES}, got {batch!r}")
         super().__init__(tolerance)
@@ -172,7 +172,7 @@ class FixedSchedule(WeightSchedule):
     kind = "fixed"
     keeps_every_policy = True
 
-    def __init__(self, weights: np.ndarray | Sequence[float], tolerance: float = 1e-6):
+    def __init__(self, weights: np.ndarray | Sequence[float], tolerance: float = TOLERANCE):
         super().__init__(tolerance)
         self.weights = np.asarray(weights, dtype=np.float64)
 
@@ -198,7 +198,7 @@ def _same_setting(saved: Any, mine: Any) -> bool:
 
 
 def make_schedule(
-    weights: str | np.ndarray | Sequence[float], ols_batch: str = "top", tolerance: float = 1e-6
+    weights: str | np.ndarray | Sequence[float], ols_batch: str = "top", tolerance: float = TOLERANCE
 ) -> WeightSchedule:
     """
     A schedule from its short description.
