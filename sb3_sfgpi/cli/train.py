@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     new_directory = not run_dir.path.exists()
     lock = _created(run_dir).lock(f"sb3-sfgpi train {args.domain} --seed {args.seed} --out {run_dir}")  # one writer
     try:
-        model = _model(args, preset, preset.build_env(config["env_kwargs"]), _created(run_dir), config)
+        model = _model(args, preset, preset.build_env(config["env_kwargs"]), run_dir, config)
     except (ValueError, UsageError):  # refused settings: leave no empty run directory behind
         if new_directory:
             lock.discard()
