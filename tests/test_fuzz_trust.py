@@ -10,12 +10,12 @@ from __future__ import annotations
 import inspect
 import json
 import os
-import shutil
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from shared_runs import edited
 
 from sb3_sfgpi.cli import main, parse_args
 from sb3_sfgpi.cli.sweep_runner import RESERVED_OPTIONS, check_run_name, read_spec
@@ -131,12 +131,7 @@ def watch(tmp_path, monkeypatch) -> Path:
 
 
 def evaluate_shared_run(run: Path, tmp_path: Path, section: str, values: dict, weights: list[str], capsys) -> None:
-    copy = tmp_path / "shared"
-    shutil.rmtree(copy, ignore_errors=True)
-    shutil.copytree(run, copy)
-    config = json.loads((copy / "run.json").read_text())
-    config[section].update(values)
-    (copy / "run.json").write_text(json.dumps(config))
+    copy = edited(run, tmp_path, section, **values)
     before = sorted((p.relative_to(copy), p.stat().st_size) for p in copy.rglob("*") if p.is_file())
     assert main(["evaluate", str(copy), "--w", *weights]) in (0, 2)
     error = capsys.readouterr().err

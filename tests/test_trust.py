@@ -4,10 +4,10 @@
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import pytest
+from shared_runs import edited
 
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.masfols import MASFOLS
@@ -39,17 +39,6 @@ def four_room_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("trust") / "four-room"
     assert main([*TINY_FOUR_ROOM, "--env", "render_mode=null", "--out", str(out)]) == 0
     return out
-
-
-def edited(run: Path, tmp_path: Path, section: str, **values) -> Path:
-    """A copy of ``run`` whose run.json sets ``values`` in ``section`` (env_kwargs or learner_kwargs)."""
-    copy = tmp_path / "shared-with-me"
-    shutil.rmtree(copy, ignore_errors=True)
-    shutil.copytree(run, copy)
-    config = json.loads((copy / "run.json").read_text())
-    config[section].update(values)
-    (copy / "run.json").write_text(json.dumps(config))
-    return copy
 
 
 @pytest.mark.parametrize(
