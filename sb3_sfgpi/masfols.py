@@ -163,6 +163,7 @@ class MASFOLS:
         #: What :meth:`learn` writes to ``run.json``: the settings, and any plain data added here (the CLI adds the
         #: domain and the env's arguments)
         self.run_info: dict[str, Any] = dict(self.settings)
+        self._logs_open = False  # logs/ is opened by the first learn(), under the run directory's lock
 
     def _evaluation(
         self, config: EvaluationConfig, fixed: Any, sharing: str, env_fn: Callable[[], ParallelEnv] | None
@@ -229,7 +230,9 @@ class MASFOLS:
                 if self.run_dir.has_checkpoint():
                     raise ValueError(f"{self.run_dir} already holds a run: continue it with MASFOLS.load")
                 self.run_dir.write_config(self.run_info)
-            self.runner.set_logger(self.run_dir.make_logger())  # continues logs/ where the checkpoint left it
+            if not self._logs_open:  # once: a later learn() goes on writing to the same files
+                self.runner.set_logger(self.run_dir.make_logger())  # continues logs/ where the checkpoint left it
+                self._logs_open = True
             return self._learn(max_iterations, callback, progress_bar)
 
     def _learn(self, max_iterations: int | None, callback: MaybeCallback, progress_bar: bool) -> MASFOLS:
