@@ -35,12 +35,8 @@ def check_options(
     batch_size: int,
     n_steps: int,
     replay_buffer_class: type[ReplayBuffer] | None,
-    planning_sweeps: int,
-    planning_interval: int,
-    optimistic_init: float,
-    policy_class: type,
 ) -> None:
-    """Refuse out-of-range options, SB3 options SFDQN does not support and bad planning or optimism options."""
+    """Refuse out-of-range learning options and SB3 options SFDQN does not support."""
     rate_ok = isinstance(learning_rate, numbers.Real) and math.isfinite(learning_rate) and learning_rate >= 0
     if not (rate_ok or callable(learning_rate)) or isinstance(learning_rate, bool):
         raise ValueError(f"learning_rate must be a number >= 0 or a schedule ('lin_X', X >= 0), got {learning_rate!r}")
@@ -54,6 +50,12 @@ def check_options(
         raise ValueError(
             f"replay_buffer_class must be a subclass of MOReplayBuffer (vector rewards), got {replay_buffer_class}"
         )
+
+
+def check_planning_options(
+    planning_sweeps: int, planning_interval: int, optimistic_init: float, policy_class: type
+) -> None:
+    """Refuse bad planning or optimism options, and planning with a policy that has no table to plan on."""
     if not isinstance(planning_sweeps, int) or planning_sweeps < 0:
         raise ValueError(f"planning_sweeps must be an integer >= 0, got {planning_sweeps!r}")
     if not isinstance(planning_interval, int) or planning_interval < 1:

@@ -22,7 +22,12 @@ from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.vec_env import vec_env_reward_dim, wrap_mo_env
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
-from sb3_sfgpi.sfdqn.options import check_options, check_schedule_options, learning_rate_schedule
+from sb3_sfgpi.sfdqn.options import (
+    check_options,
+    check_planning_options,
+    check_schedule_options,
+    learning_rate_schedule,
+)
 from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
 
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
@@ -129,17 +134,9 @@ class SFDQN(OffPolicyAlgorithm):
     ) -> None:
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
         learning_rate = learning_rate_schedule(learning_rate)
-        check_options(
-            learning_rate,
-            gamma,
-            batch_size,
-            n_steps,
-            replay_buffer_class,
-            planning_sweeps,
-            planning_interval,
-            optimistic_init,
-            policy_class,
-        )
+        check_options(learning_rate, gamma, batch_size, n_steps, replay_buffer_class)
+        check_planning_options(planning_sweeps, planning_interval, optimistic_init, policy_class)
+        exploration = (exploration_fraction, exploration_initial_eps, exploration_final_eps)
         check_schedule_options(
             buffer_size,
             learning_starts,
@@ -147,7 +144,7 @@ class SFDQN(OffPolicyAlgorithm):
             gradient_steps,
             target_update_interval,
             tau,
-            (exploration_fraction, exploration_initial_eps, exploration_final_eps),
+            exploration,
             max_grad_norm,
         )
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
