@@ -46,7 +46,8 @@ def four_room() -> dict[str, Any]:
             "exploration_fraction": 0.5,  # ε falls over half of each learner's steps
             "exploration_final_eps": 0.05,
             "planning_sweeps": 60,  # Dyna: sweeps of the SF backup on the replay buffer's model, every 5,000 steps
-            "optimistic_init": 1.25,  # optimism in the face of the untried pairs, settled at the end of learn()
+            # optimism in the face of untried pairs, 1.25 x the largest reward (here 1), settled at the end of learn()
+            "optimistic_init": "rmax_1.25",
         },
         "steps_per_iteration": 50_000,
         "iterations": 10,

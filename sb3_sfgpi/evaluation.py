@@ -25,7 +25,7 @@ from pettingzoo import ParallelEnv
 from tqdm.auto import tqdm
 
 from sb3_sfgpi.common.metrics import expected_utility
-from sb3_sfgpi.common.parallel_wrappers import flattened
+from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.serialization import jsonable
@@ -126,7 +126,7 @@ def _worker_env(overrides: tuple[tuple[str, Any], ...]) -> ParallelEnv:
         if _worker["env"] is not None:
             _worker["env"].close()
             _worker["env"] = None
-        _worker["env"] = flattened(_worker["env_fn"](**{**_worker["env_kwargs"], **dict(overrides)}))
+        _worker["env"] = as_parallel_env(_worker["env_fn"](**{**_worker["env_kwargs"], **dict(overrides)}))
         _worker["env_key"] = overrides
     return _worker["env"]
 

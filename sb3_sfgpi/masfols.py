@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.type_aliases import MaybeCallback
@@ -72,9 +73,11 @@ def acts_by_own_policies(fixed: bool, sharing: str) -> bool:
 class MASFOLS:
     """
     MA-SFOLS + GPI over a PettingZoo ParallelEnv with vector rewards: one SFDQN per agent (or one that all agents
-    share), OLS over the weights.
+    share), OLS over the weights. Given a single-agent Gymnasium env (MO-Gymnasium's), it is SFOLS + GPI: the same
+    algorithm with one agent.
 
-    :param env: the env (homogeneous agents, Discrete actions, ``reward_space(agent)``)
+    :param env: the env: a ParallelEnv (homogeneous agents, Discrete actions, ``reward_space(agent)``) or a
+        Gymnasium env with a ``reward_space`` (``mo_gymnasium.make(...)``)
     :param policy: the learners' SFDQN policy, ``"TabularPolicy"`` or ``"MlpPolicy"``
     :param weights: ``"ols"`` (MA-SFOLS), ``"random"`` (Random + GPI: Dirichlet(1) weights) or array-like fixed
         weights (a priori scalarised learners: every agent trains for them; each agent is evaluated by GPI over
@@ -106,7 +109,7 @@ class MASFOLS:
 
     def __init__(
         self,
-        env: ParallelEnv,
+        env: ParallelEnv | gym.Env,
         policy: str = "TabularPolicy",
         weights: str | np.ndarray | Sequence[float] = "ols",
         ols_batch: str = "top",
@@ -117,7 +120,7 @@ class MASFOLS:
         admission: Admission | None = None,
         evaluation: EvaluationConfig | None = None,
         n_envs: int = 1,
-        env_fn: Callable[[], ParallelEnv] | None = None,
+        env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
         seed: int = 0,
         run_dir: str | Path | None = None,
         verbose: int = 0,
@@ -185,7 +188,7 @@ class MASFOLS:
         return config
 
     @classmethod
-    def load(cls, run_dir: str | Path, env: ParallelEnv, **kwargs: Any) -> MASFOLS:
+    def load(cls, run_dir: str | Path, env: ParallelEnv | gym.Env, **kwargs: Any) -> MASFOLS:
         """
         Continue the run in ``run_dir`` from its last checkpoint, with the settings stored in its ``run.json``.
 

@@ -14,6 +14,7 @@ import warnings
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
@@ -33,7 +34,7 @@ from sb3_sfgpi.common.agent_views import (
 )
 from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
 from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
-from sb3_sfgpi.common.parallel_wrappers import flattened, time_limit
+from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.sfdqn import SFDQN
@@ -77,9 +78,10 @@ class MultiAgentRunner:
     step, ``learning_starts`` and ``target_update_interval`` in transitions). Learners are named by
     :attr:`learner_names`: the agents' names, or :data:`SHARED`.
 
-    :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents; composite
-        observation spaces (``Tuple``, ``Dict``) are flattened
-        (:class:`~sb3_sfgpi.common.parallel_wrappers.FlattenObservations`)
+    :param env: a ParallelEnv with vector rewards (``reward_space(agent)``) and homogeneous agents, or a single-agent
+        Gymnasium env with a ``reward_space`` (one agent, see
+        :class:`~sb3_sfgpi.common.single_agent.SingleAgentParallelEnv`); composite observation spaces (``Tuple``,
+        ``Dict``) are flattened (:class:`~sb3_sfgpi.common.parallel_wrappers.FlattenObservations`)
     :param learner_factory: builds a learner; see :func:`default_learner_factory`
     :param seed: seed of the run (learners and resets derive theirs from it)
     :param gamma: discount of the Monte-Carlo evaluation (default: the learners')
@@ -98,7 +100,7 @@ class MultiAgentRunner:
 
     def __init__(
         self,
-        env: ParallelEnv,
+        env: ParallelEnv | gym.Env,
         learner_factory: LearnerFactory | None = None,
         seed: int = 0,
         gamma: float | None = None,
@@ -108,7 +110,7 @@ class MultiAgentRunner:
         log_interval: int = 4,
         sharing: str = "independent",
         n_envs: int = 1,
-        env_fn: Callable[..., ParallelEnv] | None = None,
+        env_fn: Callable[..., ParallelEnv | gym.Env] | None = None,
         env_kwargs: Mapping[str, Any] | None = None,
     ):
         if isinstance(log_interval, bool) or not isinstance(log_interval, int) or log_interval < 1:
@@ -121,7 +123,7 @@ class MultiAgentRunner:
             raise ValueError("n_envs > 1 needs env_fn (and env_kwargs) to build the env's copies")
         self.log_interval = log_interval
         self.sharing = sharing
-        self.env = env = flattened(env)
+        self.env = env = as_parallel_env(env)
         self.agents: list[str] = list(env.possible_agents)
         self._time_limit = time_limit(env)
         self._warned_swap = False

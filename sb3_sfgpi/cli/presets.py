@@ -198,11 +198,20 @@ def available_domains() -> dict[str, EntryPoint]:
 
 def load_domain(name: str) -> DomainPreset:
     """
-    The preset of a domain.
+    The preset of a domain: an installed one, or a registered single-agent Gymnasium id with vector rewards (see
+    :mod:`sb3_sfgpi.cli.gym_domains`).
 
     :raises UsageError: unknown domain, or a preset with a missing or misspelt key
     """
     domains = available_domains()
-    if name not in domains:
-        raise UsageError(f"unknown domain {name!r}; available: {', '.join(sorted(domains)) or 'none installed'}")
-    return DomainPreset.from_dict(name, domains[name].load()())
+    if name in domains:
+        return DomainPreset.from_dict(name, domains[name].load()())
+    from sb3_sfgpi.cli.gym_domains import gym_preset  # Gymnasium (and MO-Gymnasium) only where asked for
+
+    data = gym_preset(name)
+    if data is None:
+        raise UsageError(
+            f"unknown domain {name!r}: neither an installed domain ({', '.join(sorted(domains)) or 'none'}) nor a "
+            "registered Gymnasium id"
+        )
+    return DomainPreset.from_dict(name, data)

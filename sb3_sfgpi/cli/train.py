@@ -29,7 +29,9 @@ ALGORITHMS = {"ma-sfols": "ols", "random": "random"}  # --algo -> MASFOLS weight
 def add_parser(sub: Any) -> None:
     """The ``train`` sub-command's arguments."""
     train = sub.add_parser("train", help="build a policy set with MA-SFOLS (or random weights)")
-    train.add_argument("domain", help="four-room, traffic, or another installed domain")
+    train.add_argument(
+        "domain", help="four-room, traffic, another installed domain, or an MO-Gymnasium id (deep-sea-treasure-v0)"
+    )
     train.add_argument(
         "--algo",
         choices=["ma-sfols", "random", "fixed"],
@@ -192,7 +194,7 @@ def _fixed_budget(args: argparse.Namespace, iterations: int, steps_per_iteration
 def _default_name(args: argparse.Namespace, config: dict[str, Any]) -> str:
     weights = config["weights"]
     tag = "" if isinstance(weights, str) else "-w" + "-".join(f"{x:g}" for x in np.round(weights, 4))
-    return f"{args.domain}-{args.algo}{tag}-s{args.seed}"
+    return f"{args.domain.replace('/', '_')}-{args.algo}{tag}-s{args.seed}"
 
 
 def _resumed_config(

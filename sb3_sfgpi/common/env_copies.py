@@ -14,7 +14,7 @@ import multiprocessing as mp
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from sb3_sfgpi.common.parallel_wrappers import flattened
+from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
 
 #: What a copy returns for a step: observations, rewards, terminations, truncations, infos, agents still in it.
 StepResult = tuple[dict, dict, dict, dict, dict, list[str]]
@@ -22,7 +22,7 @@ StepResult = tuple[dict, dict, dict, dict, dict, list[str]]
 
 def _serve(pipe: Any, env_fn: Callable[..., Any], env_kwargs: Mapping[str, Any]) -> None:
     """The loop of a copy's process: build the env, then answer reset/step/close."""
-    env = flattened(env_fn(**env_kwargs))
+    env = as_parallel_env(env_fn(**env_kwargs))
     try:
         while True:
             command, data = pipe.recv()

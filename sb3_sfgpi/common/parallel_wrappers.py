@@ -4,8 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
+import gymnasium as gym
 from gymnasium import spaces
+from pettingzoo import AECEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper
+
+from sb3_sfgpi.common.single_agent import SingleAgentParallelEnv
 
 #: Observation spaces SB3's replay buffers and policies take as they are.
 FLAT_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
@@ -46,8 +50,23 @@ class FlattenObservations(BaseParallelWrapper):
         return self._flatten(observations), rewards, terminations, truncations, infos
 
 
-def flattened(env: Any) -> Any:
-    """``env`` itself, or :class:`FlattenObservations` of it where some observation space is composite."""
+def as_parallel_env(env: Any) -> Any:
+    """
+    ``env`` as the runner trains on it: a single-agent Gymnasium env becomes a
+    :class:`~sb3_sfgpi.common.single_agent.SingleAgentParallelEnv` (SFOLS is MA-SFOLS with one agent), and
+    :class:`FlattenObservations` wraps an env whose observation spaces are composite.
+
+    :raises ValueError: a turn-based (AEC) env, or something that is neither a ParallelEnv nor a Gymnasium env
+    """
+    if isinstance(env, gym.Env):
+        env = SingleAgentParallelEnv(env)
+    elif isinstance(env, AECEnv):
+        raise ValueError(
+            f"{env} is a turn-based (AEC) env: MA-SFOLS trains agents that act together in a ParallelEnv, and "
+            "turn-based games need action masks, which SFDQN does not take (docs: environments, MOMAland)"
+        )
+    elif not hasattr(env, "possible_agents"):
+        raise ValueError(f"{env!r} is neither a PettingZoo ParallelEnv nor a Gymnasium env")
     return FlattenObservations(env) if needs_flattening(env) else env
 
 

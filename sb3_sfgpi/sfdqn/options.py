@@ -29,6 +29,40 @@ def learning_rate_schedule(learning_rate: float | str | Schedule) -> float | str
     return learning_rate
 
 
+#: The prefix of an optimism relative to the reward scale: ``"rmax_X"`` is ``X`` times the largest one-step reward.
+RELATIVE_OPTIMISM = "rmax_"
+
+
+def optimism_factor(optimistic_init: Any) -> float | None:
+    """The factor ``X`` of ``"rmax_X"`` (a finite ``X >= 0``), None for anything else."""
+    if isinstance(optimistic_init, str) and optimistic_init.startswith(RELATIVE_OPTIMISM):
+        with contextlib.suppress(ValueError):
+            factor = float(optimistic_init.removeprefix(RELATIVE_OPTIMISM))
+            if math.isfinite(factor) and factor >= 0:
+                return factor
+    return None
+
+
+def optimistic_value(optimistic_init: float | str, reward_low: Any, reward_high: Any) -> float:
+    """
+    The initial value of every table entry: ``optimistic_init`` itself, or for ``"rmax_X"`` ``X`` times the largest
+    magnitude of the reward space's bounds (the largest reward one step can give), so that the same setting
+    explores alike whatever the scale of the env's rewards.
+
+    :raises ValueError: ``"rmax_X"`` with a reward space whose bounds are not finite
+    """
+    factor = optimism_factor(optimistic_init)
+    if factor is None:
+        return float(optimistic_init)
+    bounds = [abs(float(bound)) for bound in (*reward_low, *reward_high)]
+    if not all(math.isfinite(bound) for bound in bounds):
+        raise ValueError(
+            f"optimistic_init={optimistic_init!r} needs a reward_space with finite bounds, got {reward_low}, "
+            f"{reward_high}: give an absolute value instead"
+        )
+    return factor * max(bounds)
+
+
 def check_options(
     learning_rate: float | str | Schedule,
     gamma: float,
@@ -53,7 +87,7 @@ def check_options(
 
 
 def check_planning_options(
-    planning_sweeps: int, planning_interval: int, optimistic_init: float, policy_class: type
+    planning_sweeps: int, planning_interval: int, optimistic_init: float | str, policy_class: type
 ) -> None:
     """Refuse bad planning or optimism options, and planning with a policy that has no table to plan on."""
     if not isinstance(planning_sweeps, int) or planning_sweeps < 0:
@@ -62,8 +96,12 @@ def check_planning_options(
         raise ValueError(f"planning_interval must be an integer >= 1, got {planning_interval!r}")
     if planning_sweeps and not issubclass(policy_class, TabularPolicy):
         raise ValueError(f"planning (planning_sweeps > 0) needs TabularPolicy, got {policy_class.__name__}")
-    if not isinstance(optimistic_init, numbers.Real) or not math.isfinite(optimistic_init):
-        raise ValueError(f"optimistic_init must be a finite number, got {optimistic_init!r}")
+    absolute = isinstance(optimistic_init, numbers.Real) and not isinstance(optimistic_init, bool)
+    if not (absolute and math.isfinite(optimistic_init)) and optimism_factor(optimistic_init) is None:
+        raise ValueError(
+            f"optimistic_init must be a finite number or 'rmax_X' (X >= 0 times the largest reward), "
+            f"got {optimistic_init!r}"
+        )
     if optimistic_init and not planning_sweeps:
         raise ValueError("optimistic_init needs planning (planning_sweeps > 0): planning settles the optimism")
 

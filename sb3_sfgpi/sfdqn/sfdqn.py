@@ -27,6 +27,7 @@ from sb3_sfgpi.sfdqn.options import (
     check_planning_options,
     check_schedule_options,
     learning_rate_schedule,
+    optimistic_value,
 )
 from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
 
@@ -78,8 +79,9 @@ class SFDQN(OffPolicyAlgorithm):
         entry of the table starts at this value, so the greedy behaviour tries the pairs it has not tried yet, and
         planning carries their promise to the states that lead to them (directed exploration, as R-max). At the end
         of :meth:`learn`, :meth:`settle` removes it: the pairs never tried get 0 and the table is planned until it
-        converges, so the trained policy never counts on an action it has not tried. Pick a value of the order of the
-        values the task gives: the higher, the more of the state space is explored (docs: experiments/single_agent)
+        converges, so the trained policy never counts on an action it has not tried. ``"rmax_X"``: ``X`` times the
+        largest reward one step can give (read from the bounds of the env's ``reward_space``), one setting for
+        every scale of rewards; the higher, the more of the state space is explored (docs: experiments/single_agent)
     :param stats_window_size: Window size for the rollout logging
     :param tensorboard_log: The log location for tensorboard (if None, no logging)
     :param policy_kwargs: Additional arguments to be passed to the policy on creation (``MlpPolicy``: ``net_arch``,
@@ -123,7 +125,7 @@ class SFDQN(OffPolicyAlgorithm):
         max_grad_norm: float = 10,
         planning_sweeps: int = 0,
         planning_interval: int = 5_000,
-        optimistic_init: float = 0.0,
+        optimistic_init: float | str = 0.0,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -182,7 +184,7 @@ class SFDQN(OffPolicyAlgorithm):
         self.max_grad_norm = max_grad_norm
         self.planning_sweeps = planning_sweeps
         self.planning_interval = planning_interval
-        self.optimistic_init = float(optimistic_init)
+        self.optimistic_init = optimistic_init if isinstance(optimistic_init, str) else float(optimistic_init)
         self._plannings = 0  # plannings done: one each time num_timesteps passes a multiple of planning_interval
         self.exploration_rate = 0.0
         if self.env is not None:
@@ -205,8 +207,11 @@ class SFDQN(OffPolicyAlgorithm):
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )
         self.set_weights(self._weights)
-        if self.optimistic_init:
-            self.policy.fill(self.optimistic_init)  # type: ignore[attr-defined]
+        reward_space = self.env.get_attr("reward_space", indices=[0])[0] if self.env is not None else None
+        bounds = (reward_space.low, reward_space.high) if reward_space is not None else ([np.inf], [np.inf])
+        self.optimistic_value = optimistic_value(self.optimistic_init, *bounds)
+        if self.optimistic_value:
+            self.policy.fill(self.optimistic_value)  # type: ignore[attr-defined]
 
     @property
     def weights(self) -> np.ndarray:
@@ -409,7 +414,7 @@ class SFDQN(OffPolicyAlgorithm):
         :data:`~sb3_sfgpi.sfdqn.planning.TOLERANCE` (at most :data:`SETTLE_SWEEPS` sweeps). Called at the end of
         :meth:`learn`; a later :meth:`learn` goes on from the settled table, without optimism.
         """
-        if self.optimistic_init:
+        if self.optimistic_value:
             self.policy.plan(self.replay_buffer, self.gamma, SETTLE_SWEEPS, untried_value=0.0)  # type: ignore[attr-defined]
 
     @classmethod

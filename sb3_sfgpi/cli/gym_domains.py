@@ -1,0 +1,108 @@
+"""Presets for single-agent Gymnasium ids with vector rewards: ``sb3-sfgpi train deep-sea-treasure-v0`` is SFOLS + GPI.
+
+A domain the entry points do not name is looked up in Gymnasium's registry (MO-Gymnasium's ids join it when
+``mo_gymnasium`` is installed). Its env must follow MO-Gymnasium's convention (a ``reward_space`` Box of shape
+``(d,)``). The learners are tables where the observations are small integers (the planning and relative optimism of
+the Four-Room presets, read against the env's own reward scale), else MLPs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import importlib
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_sfgpi.cli.errors import UsageError
+from sb3_sfgpi.common.single_agent import SingleAgentParallelEnv
+from sb3_sfgpi.common.vec_env import env_reward_dim
+
+#: Packages whose import registers multi-objective ids in Gymnasium's registry (imported when installed).
+REGISTERING_PACKAGES = ("mo_gymnasium",)
+#: The most states a tabular learner is picked for (beyond, an MLP).
+MAX_TABULAR_STATES = 1_000_000
+
+TABULAR_LEARNER = {
+    "policy": "TabularPolicy",
+    "learning_rate": 0.1,
+    "gamma": 0.99,
+    "buffer_size": 1_000_000,
+    "learning_starts": 0,
+    "train_freq": 1,
+    "exploration_initial_eps": 1.0,
+    "exploration_fraction": 0.5,
+    "exploration_final_eps": 0.05,
+    "planning_sweeps": 60,
+    "optimistic_init": "rmax_1.25",
+}
+MLP_LEARNER = {
+    "policy": "MlpPolicy",
+    "learning_rate": 3e-4,
+    "gamma": 0.99,
+    "buffer_size": 100_000,
+    "batch_size": 128,
+    "learning_starts": 1_000,
+    "train_freq": 1,
+    "target_update_interval": 500,
+    "exploration_fraction": 0.3,
+    "exploration_final_eps": 0.05,
+    "policy_kwargs": {"net_arch": [256, 256]},
+}
+
+
+def make_gym_env(env_id: str, **env_kwargs: Any) -> SingleAgentParallelEnv:
+    """The Gymnasium env ``env_id`` as a ParallelEnv of one agent (picklable with ``functools.partial``)."""
+    _register_ids()
+    return SingleAgentParallelEnv(gym.make(env_id, **env_kwargs))
+
+
+def gym_preset(env_id: str) -> dict[str, Any] | None:
+    """
+    The preset data of a registered Gymnasium id, or None where the registry does not know it.
+
+    :raises UsageError: a registered env without a vector ``reward_space``
+    """
+    _register_ids()
+    if env_id not in gym.registry:
+        return None
+    env = gym.make(env_id)
+    try:
+        reward_dim = env_reward_dim(env)
+        tabular = _n_states(env.observation_space) <= MAX_TABULAR_STATES
+    except ValueError as error:
+        raise UsageError(f"{env_id}: {error}") from None
+    finally:
+        env.close()
+    return {
+        "make_env": functools.partial(make_gym_env, env_id),
+        "env_kwargs": {},
+        "learner_kwargs": dict(TABULAR_LEARNER if tabular else MLP_LEARNER),
+        "steps_per_iteration": 10_000 if tabular else 20_000,
+        "iterations": 20 if tabular else 10,
+        "n_test_weights": 50,
+        "value_episodes": 5,
+        "eval_episodes": 5,
+        "validation_weights": 50,  # a new policy joins Π only if GPI does no worse with it
+        "objectives": [f"objective {i}" for i in range(reward_dim)],
+        "run_file_env_kwargs": [],  # a run file sets no env argument of an arbitrary env
+    }
+
+
+def _n_states(observation_space: gym.Space) -> float:
+    """How many observations a table would need (infinity for a space a table cannot hold)."""
+    from sb3_sfgpi.sfdqn.networks import observation_radices
+
+    try:
+        _, n_values = observation_radices(observation_space)
+    except ValueError:
+        return float("inf")
+    return float(np.prod(n_values.astype(np.float64)))
+
+
+def _register_ids() -> None:
+    for package in REGISTERING_PACKAGES:
+        with contextlib.suppress(ImportError):
+            importlib.import_module(package)

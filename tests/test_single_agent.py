@@ -1,0 +1,117 @@
+"""SFOLS + GPI on single-agent MO-Gymnasium envs: the adapter, MASFOLS with one agent, the command line, optimism
+relative to the reward scale, and the envs that are refused."""
+
+from __future__ import annotations
+
+import functools
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from sb3_sfgpi import MASFOLS, SFDQN, EvaluationConfig, GPIPolicy
+from sb3_sfgpi.common.single_agent import AGENT, SingleAgentParallelEnv
+from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.sfdqn.options import optimistic_value
+
+mo = pytest.importorskip("mo_gymnasium")
+
+DST = "deep-sea-treasure-v0"
+#: The tabular learners of the command line's preset for small integer observations, with a shorter planning period.
+LEARNER = dict(
+    learning_rate=0.1, gamma=0.99, learning_starts=0, train_freq=1, exploration_fraction=0.5, planning_sweeps=30,
+    planning_interval=2_000, optimistic_init="rmax_1.25",
+)  # fmt: skip
+
+
+def best_expected_utility(test_weights: np.ndarray) -> float:
+    """EU*: the mean over the test weights of the best w·(discounted return) on DST's true front."""
+    front = np.array(mo.make(DST).unwrapped.pareto_front(0.99))
+    return float(np.mean((test_weights @ front.T).max(axis=1)))
+
+
+def test_the_adapter_is_a_parallel_env_of_one_agent():
+    env = SingleAgentParallelEnv(mo.make(DST))
+    assert env.possible_agents == [AGENT] and env.agents == []
+    assert env.reward_space(AGENT).shape == (2,)
+    observations, infos = env.reset(seed=0)
+    assert list(observations) == [AGENT] and list(infos) == [AGENT] and env.agents == [AGENT]
+    _, rewards, terminations, truncations, _ = env.step({AGENT: 1})  # down: the first treasure, the episode ends
+    assert rewards[AGENT].dtype == np.float32 and rewards[AGENT].tolist() == pytest.approx([0.7, -1.0])
+    assert terminations[AGENT] and not truncations[AGENT] and env.agents == []
+    with pytest.raises(ValueError, match="one agent 'agent_0'"):
+        env.step({"agent_1": 0})
+
+
+def test_scalar_reward_and_turn_based_envs_are_refused_in_one_line():
+    with pytest.raises(ValueError, match="reward_space"):
+        MASFOLS(gym.make("CartPole-v1"))
+    moconnect4_v0 = pytest.importorskip("momaland.envs.connect4.moconnect4_v0")
+    with pytest.raises(ValueError, match=r"turn-based \(AEC\) env.*action masks"):
+        MASFOLS(moconnect4_v0.env())
+
+
+def test_sfols_reaches_the_true_front_of_deep_sea_treasure():
+    """Two iterations of 10,000 steps: GPI over the set reaches the exact optimum on 20 test weights (EU/EU* ≥ 0.99)."""
+    test_weights = random_weights(2, 20, rng=0)
+    model = MASFOLS(
+        mo.make(DST), steps_per_iteration=10_000, learner_kwargs=LEARNER, evaluation=EvaluationConfig(test_weights)
+    )
+    model.learn(max_iterations=2)
+    returns = np.array([test["agents"][AGENT]["discounted"] for test in model.history[-1]["test"]])
+    assert returns.shape == (20, 2)
+    expected_utility = np.mean(np.sum(test_weights * returns, axis=1))
+    assert expected_utility == pytest.approx(model.history[-1]["mean_return"])
+    assert expected_utility / best_expected_utility(test_weights) >= 0.99
+    # the set acts on the env's own observations, as GPIPolicy.predict does for any agent
+    observation, _ = mo.make(DST).reset(seed=0)
+    action, _ = model.policy_set.predict(observation, w=[0.9, 0.1])
+    assert 0 <= int(action) < 4
+
+
+def test_relative_optimism_is_read_from_the_reward_space():
+    model = SFDQN("TabularPolicy", mo.make(DST), planning_sweeps=1, optimistic_init="rmax_2")
+    assert model.optimistic_value == pytest.approx(2 * 23.7, rel=1e-6)  # DST's largest treasure
+    assert optimistic_value("rmax_1.25", [0.0, 0.0], [1.0, 1.0]) == 1.25  # Four-Room's preset: the same 1.25
+    with pytest.raises(ValueError, match="optimistic_init must be a finite number or 'rmax_X'"):
+        SFDQN("TabularPolicy", mo.make(DST), planning_sweeps=1, optimistic_init="rmax_x")
+    with pytest.raises(ValueError, match="finite bounds"):
+        optimistic_value("rmax_1", [-np.inf], [1.0])
+
+
+def test_copies_of_a_gymnasium_env_train_in_their_processes():
+    model = MASFOLS(
+        mo.make(DST), steps_per_iteration=400, learner_kwargs=dict(learning_starts=50), evaluation=EvaluationConfig(2),
+        n_envs=2, env_fn=functools.partial(mo.make, DST),
+    )  # fmt: skip
+    try:
+        model.learn(max_iterations=1)
+    finally:
+        model.close()
+    assert model.runner.learners[AGENT].num_timesteps == 800  # two copies, 400 joint steps
+
+
+def cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "sb3_sfgpi.cli", *argv], capture_output=True, text=True)
+
+
+def test_the_command_line_trains_an_mo_gymnasium_id(tmp_path):
+    out = tmp_path / "dst"
+    trained = cli("train", DST, "--iterations", "2", "--steps-per-iteration", "3000", "--out", str(out))
+    assert trained.returncode == 0, trained.stderr
+    assert trained.stdout.startswith(f"sb3-sfgpi train {DST}: ma-sfols, seed 0")
+    evaluated = cli("evaluate", str(out), "--w", "0.3", "0.7")
+    assert evaluated.returncode == 0 and "agent_0: return" in evaluated.stdout
+    policy_set = GPIPolicy.load(out / "policy_set")
+    assert policy_set.reward_dim == 2 and len(policy_set) >= 1
+
+
+@pytest.mark.parametrize(
+    "domain, message", [("no-such-env-v0", "unknown domain 'no-such-env-v0'"), ("CartPole-v1", "reward_space")]
+)
+def test_the_command_line_refuses_ids_it_cannot_train(tmp_path, domain, message):
+    result = cli("train", domain, "--out", str(tmp_path / "x"))
+    assert result.returncode == 2 and message in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
