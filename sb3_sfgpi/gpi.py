@@ -40,9 +40,9 @@ from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.rollouts import JointPolicy
 from sb3_sfgpi.common.weights import validate_weights, weighted_sum
+from sb3_sfgpi.gpi_predictor import GPIPredictor
 from sb3_sfgpi.ols import OLS, TOLERANCE
 from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_spec
-from sb3_sfgpi.gpi_predictor import GPIPredictor
 from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN

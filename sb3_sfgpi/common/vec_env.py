@@ -8,8 +8,8 @@ exposes ``reward_space``.
 
 from __future__ import annotations
 
-import time
 import importlib
+import time
 from collections.abc import Callable
 from typing import Any, SupportsFloat
 
