@@ -138,7 +138,7 @@ class _EpisodeRecorder:
             if callback is not None:
                 callback(locals(), globals())
             if done:
-                self._end_episode(i, info)
+                self._end_episode(int(i), info)
 
     def _end_episode(self, i: int, info: dict[str, Any]) -> None:
         episode = info.get("episode")

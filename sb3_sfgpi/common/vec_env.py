@@ -164,7 +164,7 @@ def make_mo_vec_env(
     env_id: str | Callable[..., gym.Env],
     n_envs: int = 1,
     seed: int | None = None,
-    vec_env_cls: type[VecEnv] = MODummyVecEnv,
+    vec_env_cls: type[DummyVecEnv] | type[SubprocVecEnv] = MODummyVecEnv,
     env_kwargs: dict[str, Any] | None = None,
     wrapper_class: Callable[..., gym.Env] | None = None,
     wrapper_kwargs: dict[str, Any] | None = None,
