@@ -9,7 +9,7 @@ import gymnasium as gym
 import mo_gymnasium
 import numpy as np
 import pytest
-from conftest import BAD_WEIGHTS, FIG1_TABULAR_STEPS
+from conftest import BAD_WEIGHTS, FIG1_TABULAR_KWARGS, FIG1_TABULAR_STEPS
 from mo_gymnasium.wrappers import LinearReward
 from momdp import ALL_POLICIES, Fig1MOMDP, exact_tabular_network, optimal_value, policy_value
 from stable_baselines3.common.callbacks import BaseCallback, StopTrainingOnRewardThreshold
@@ -122,10 +122,18 @@ def sb3_return(predictor, w) -> float:
     return float(mean)
 
 
+@pytest.fixture(scope="module")
+def trained_set() -> GPIPolicy:
+    """GPI over two tabular learners trained on the Fig. 1 MOMDP for opposite weights."""
+    return GPIPolicy(
+        SFDQN("TabularPolicy", Fig1MOMDP(), weights=w, seed=0, **FIG1_TABULAR_KWARGS).learn(FIG1_TABULAR_STEPS)
+        for w in ([0.9, 0.1], [0.1, 0.9])
+    )
+
+
 @pytest.mark.parametrize("w", [[1.0, 0.0], [0.3, 0.7], [0.6, 0.4]])
-def test_sb3_evaluate_policy_runs_gpi_over_trained_policies(w, make_tabular_sfdqn):
-    learners = [make_tabular_sfdqn(trained_for).learn(FIG1_TABULAR_STEPS) for trained_for in ([0.9, 0.1], [0.1, 0.9])]
-    predictor = GPIPolicy(learners).for_weights(w)
+def test_sb3_evaluate_policy_runs_gpi_over_trained_policies(w, trained_set):
+    predictor = trained_set.for_weights(w)
     mean, _ = mo_evaluate_policy(predictor, Fig1MOMDP(), n_eval_episodes=2)
     assert sb3_return(predictor, w) == pytest.approx(float(np.dot(w, mean)))
     np.testing.assert_array_equal(predictor.weights, w)
@@ -225,6 +233,25 @@ def test_eval_callback_runs_the_callbacks_of_a_new_best_and_of_every_evaluation(
 def test_eval_callback_refuses_bad_inputs(env, kwargs, message):
     with pytest.raises(ValueError, match=message):
         MOEvalCallback(env(), **kwargs)
+
+
+class WithoutWeights:
+    """A model as SB3's callbacks see it, without ``weights``."""
+
+    logger = None
+
+    def __init__(self, env):
+        self.env = env
+
+    def get_env(self):
+        return self.env
+
+
+def test_eval_callback_needs_weights_to_scalarise():
+    env = make_mo_vec_env(DST)
+    with pytest.raises(ValueError, match="weights="):
+        MOEvalCallback(mo_gymnasium.make(DST), verbose=0).init_callback(WithoutWeights(env))  # type: ignore[arg-type]
+    MOEvalCallback(mo_gymnasium.make(DST), weights=[0.5, 0.5], verbose=0).init_callback(WithoutWeights(env))
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -91,9 +91,13 @@ def _check_predictor(model: Any) -> None:
     predict = getattr(model, "predict", None)
     if not callable(predict):
         raise ValueError(f"{type(model).__name__} has no predict(observation, state, episode_start, deterministic)")
+    try:
+        parameters = list(inspect.signature(predict).parameters.items())
+    except (TypeError, ValueError):  # no signature to read (a builtin): let the call tell
+        return
     required = [
         name
-        for name, parameter in list(inspect.signature(predict).parameters.items())[1:]
+        for name, parameter in parameters[1:]
         if parameter.default is inspect.Parameter.empty
         and parameter.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     ]
