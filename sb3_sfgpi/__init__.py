@@ -2,9 +2,13 @@
 
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation
+from sb3_sfgpi.common.mo_callbacks import MOEvalCallback
+from sb3_sfgpi.common.mo_evaluation import mo_evaluate_policy
 from sb3_sfgpi.common.parallel_wrappers import FlattenObservations, SwapTerminationsTruncations
+from sb3_sfgpi.common.vec_env import make_mo_vec_env
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.gpi_predictor import GPIPredictor
 from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.ols import OLS
@@ -22,6 +26,8 @@ __all__ = [
     "FixedSchedule",
     "FlattenObservations",
     "GPIPolicy",
+    "GPIPredictor",
+    "MOEvalCallback",
     "MultiAgentRunner",
     "OLSCallback",
     "OLSSchedule",
@@ -30,4 +36,6 @@ __all__ = [
     "SwapTerminationsTruncations",
     "ValueEstimation",
     "__version__",
+    "make_mo_vec_env",
+    "mo_evaluate_policy",
 ]

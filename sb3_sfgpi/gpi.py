@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -40,43 +40,15 @@ from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.rollouts import JointPolicy
 from sb3_sfgpi.common.weights import validate_weights, weighted_sum
+from sb3_sfgpi.gpi_predictor import GPIPredictor
 from sb3_sfgpi.ols import OLS, TOLERANCE
 from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_spec
-from sb3_sfgpi.policy_set_files import MANIFEST, read_policy_set, write_policy_set
+from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap, stack_networks
 
-__all__ = ["MANIFEST", "CorruptPolicySetError", "GPIPolicy", "PolicyInfo"]
-
-
-@dataclass(frozen=True)
-class PolicyInfo:
-    """
-    What the set knows of one policy besides its network.
-
-    :param weights: the preference weights it was trained for
-    :param value: its value vector ``V^π`` (``None`` if not evaluated)
-    :param agent: the agent that learned it
-    :param iteration: the OLS iteration that produced it
-    :param retired: the iteration after which policy validation took it out of Π (``None``: in Π)
-    """
-
-    weights: np.ndarray
-    value: np.ndarray | None = None
-    agent: str | None = None
-    iteration: int | None = None
-    retired: int | None = None
-
-    def to_dict(self, file: str) -> dict[str, Any]:
-        return {
-            "file": file,
-            "weights": self.weights.tolist(),
-            "value": None if self.value is None else self.value.tolist(),
-            "agent": self.agent,
-            "iteration": self.iteration,
-            "retired": self.retired,
-        }
+__all__ = ["MANIFEST", "CorruptPolicySetError", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
 
 
 class GPIPolicy:
@@ -400,6 +372,16 @@ class GPIPolicy:
         obs, vectorized = self._obs_to_array(observation)
         actions = self._gpi_q(obs, weights).argmax(axis=1)
         return (actions if vectorized else actions[0]), state
+
+    def for_weights(self, w: np.ndarray | Sequence[float]) -> GPIPredictor:
+        """
+        GPI for the preference ``w`` behind SB3's ``predict(observation, state, episode_start, deterministic)``, which
+        SB3's tools (``evaluate_policy`` on ``LinearReward(env, weight=w)``, RL-Zoo-style scripts) call without a
+        weight. It acts over this set as it is when it acts.
+
+        :raises ValueError: bad weights or an empty set
+        """
+        return GPIPredictor(self, w)
 
     def save(self, path: str | Path) -> None:
         """

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,35 @@ from sb3_sfgpi.policy_files import (
 FORMAT = "sb3-sfgpi/policy-set"
 VERSION = 1
 MANIFEST = "manifest.json"
+
+
+@dataclass(frozen=True)
+class PolicyInfo:
+    """
+    What the set knows of one policy besides its network.
+
+    :param weights: the preference weights it was trained for
+    :param value: its value vector ``V^π`` (``None`` if not evaluated)
+    :param agent: the agent that learned it
+    :param iteration: the OLS iteration that produced it
+    :param retired: the iteration after which policy validation took it out of Π (``None``: in Π)
+    """
+
+    weights: np.ndarray
+    value: np.ndarray | None = None
+    agent: str | None = None
+    iteration: int | None = None
+    retired: int | None = None
+
+    def to_dict(self, file: str) -> dict[str, Any]:
+        return {
+            "file": file,
+            "weights": self.weights.tolist(),
+            "value": None if self.value is None else self.value.tolist(),
+            "agent": self.agent,
+            "iteration": self.iteration,
+            "retired": self.retired,
+        }
 
 
 def write_policy_set(

@@ -8,6 +8,7 @@ exposes ``reward_space``.
 
 from __future__ import annotations
 
+import importlib
 import time
 from collections.abc import Callable
 from typing import Any, SupportsFloat
@@ -157,3 +158,86 @@ def _is_wrapped_in(env: gym.Env, wrapper_class: type[gym.Wrapper]) -> bool:
             return True
         env = env.env
     return False
+
+
+def make_mo_vec_env(
+    env_id: str | Callable[..., gym.Env],
+    n_envs: int = 1,
+    seed: int | None = None,
+    vec_env_cls: type[DummyVecEnv] | type[SubprocVecEnv] = MODummyVecEnv,
+    env_kwargs: dict[str, Any] | None = None,
+    wrapper_class: Callable[..., gym.Env] | None = None,
+    wrapper_kwargs: dict[str, Any] | None = None,
+    vec_env_kwargs: dict[str, Any] | None = None,
+) -> VecEnv:
+    """
+    A vectorised, monitored vector-reward env: the counterpart of SB3's ``make_vec_env``, whose ``Monitor`` and
+    ``DummyVecEnv`` break on vector rewards.
+
+    Each env is made by ``env_id``, wrapped in :class:`MOMonitor` (then in ``wrapper_class``, if given) and seeded
+    as SB3 seeds its envs: the action space of env ``i`` at once with ``seed + i``, the env itself with
+    ``seed + i`` at its first reset.
+
+    :param env_id: a registered env id (an MO-Gymnasium id such as ``"deep-sea-treasure-v0"`` imports
+        MO-Gymnasium, which registers its envs, when the id is not registered yet), or a callable returning an env
+    :param n_envs: number of envs
+    :param seed: the first env's seed, ``None`` for random seeds
+    :param vec_env_cls: :class:`MODummyVecEnv` (one process) or SB3's ``SubprocVecEnv`` (one process per env)
+    :param env_kwargs: keyword arguments of ``gym.make`` or of the callable
+    :param wrapper_class: a wrapper applied to each env after :class:`MOMonitor`
+    :param wrapper_kwargs: its keyword arguments
+    :param vec_env_kwargs: keyword arguments of ``vec_env_cls`` (e.g. ``start_method`` of ``SubprocVecEnv``)
+    :return: the VecEnv, with vector rewards of shape ``(n_envs, d)``
+    :raises ValueError: ``n_envs < 1``, an unknown id, a scalar-reward env, or a VecEnv class that breaks vectors
+    :raises ImportError: an id that is not registered while MO-Gymnasium is not installed
+    """
+    if n_envs < 1:
+        raise ValueError(f"n_envs must be at least 1, got {n_envs}")
+    if isinstance(env_id, str):
+        _register_env_id(env_id)  # here, to fail before any process starts
+
+    def make_env(rank: int) -> Callable[[], gym.Env]:
+        def make() -> gym.Env:
+            env = _make_env(env_id, env_kwargs or {})
+            if seed is not None:
+                env.action_space.seed(seed + rank)
+            env = MOMonitor(env)
+            return env if wrapper_class is None else wrapper_class(env, **(wrapper_kwargs or {}))
+
+        return make
+
+    venv = vec_env_cls([make_env(rank) for rank in range(n_envs)], **(vec_env_kwargs or {}))
+    try:
+        vec_env_reward_dim(venv)
+    except ValueError:
+        venv.close()
+        raise
+    venv.seed(seed)
+    return venv
+
+
+def _make_env(env_id: str | Callable[..., gym.Env], env_kwargs: dict[str, Any]) -> gym.Env:
+    if not isinstance(env_id, str):
+        return env_id(**env_kwargs)
+    _register_env_id(env_id)  # again: a fresh worker process of SubprocVecEnv has not imported MO-Gymnasium
+    # Gymnasium's env checker wants scalar rewards (MO-Gymnasium's own ``make`` turns it off too).
+    return gym.make(env_id, **{"disable_env_checker": True, **env_kwargs})
+
+
+def _register_env_id(env_id: str) -> None:
+    """Make sure Gymnasium knows ``env_id``, importing MO-Gymnasium (which registers its envs) if it does not."""
+    try:
+        gym.spec(env_id)
+        return
+    except gym.error.Error:
+        pass
+    try:
+        importlib.import_module("mo_gymnasium")
+    except ImportError as error:
+        raise ImportError(
+            f"{env_id!r} is not a registered Gymnasium env id; if it is an MO-Gymnasium env, install mo-gymnasium"
+        ) from error
+    try:
+        gym.spec(env_id)
+    except gym.error.Error as error:
+        raise ValueError(f"{env_id!r} is neither a Gymnasium nor an MO-Gymnasium env id: {error}") from None
