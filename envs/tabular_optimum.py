@@ -63,6 +63,7 @@ class TabularMDP:
             raise ValueError("the outcome probabilities of every state and action must sum to 1")
         self.next_state, self.probability, self.reward = next_state, probability, reward
         self.observations = observations
+        self.observation_dtype = np.int32  # MO-Gymnasium's grid envs observe int32 arrays
         self.n_states, self.n_actions, _, self.reward_dim = reward.shape
         self.start, self.horizon, self.gamma = int(start), int(horizon), float(gamma)
         self._index = {tuple(np.asarray(o).ravel().tolist()): s for s, o in enumerate(observations)}
@@ -159,6 +160,20 @@ class TabularMDP:
             nxt = self.next_state[states, actions[t]]  # (S, K)
             after[:-1] = np.einsum("sk,skd->sd", p, r + self.gamma * after[nxt])
         return after[self.start].copy()
+
+    def expected_utility(
+        self, act: Callable[[np.ndarray, np.ndarray], Sequence[int] | np.ndarray], weights: np.ndarray
+    ) -> float:
+        """
+        Mean over ``weights`` of ``w · V^π(s0)`` of a policy asked for its actions in every state, exactly.
+
+        :param act: ``act(observations, w)``: the actions for a batch of observations (every state's, with the
+            dtype of the env's observation space) and a weight, e.g. GPI's ``predict(observations, w)[0]``
+        :param weights: shape ``(n, d)``
+        """
+        observations = self.observations.astype(self.observation_dtype)
+        values = [float(np.dot(w, self.policy_value(np.asarray(act(observations, w)).reshape(-1)))) for w in weights]
+        return float(np.mean(values))
 
     def state_of(self, observation: Sequence[float] | np.ndarray) -> int:
         """The index of the state the env shows as ``observation``, or ``KeyError``."""

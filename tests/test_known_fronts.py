@@ -152,3 +152,14 @@ def test_policy_value_of_a_table_of_actions():
         TabularMDP(next_state, np.full((2, 2, 1), 0.5), reward, np.array([[0], [1]]), 0, 5, 0.5)
     with pytest.raises(ValueError, match="2 finite numbers"):
         mdp.value([1.0, 0.0, 0.0])
+
+
+def test_expected_utility_of_tables_of_actions():
+    """The exact EU of a policy asked for its actions in every state (how the benchmark scores GPI): EU* for the
+    optimal actions, the first treasure's value for always going down."""
+    mdp = deep_sea_treasure_mdp(mo.make("deep-sea-treasure-v0"), GAMMA)
+    weights = random_weights(2, 10, rng=0)
+    optimal = mdp.expected_utility(lambda observations, w: mdp.greedy_actions(w)[0], weights)
+    assert optimal == pytest.approx(np.mean([mdp.value(w) for w in weights]), abs=1e-9)
+    always_down = mdp.expected_utility(lambda observations, w: np.full(len(observations), DOWN), weights)
+    assert always_down == pytest.approx(np.mean(weights @ [0.7, -1.0]))  # the first treasure, in one step
