@@ -3,13 +3,16 @@
     python -m benchmarks                 # everything (about 26 minutes on 2 cores, 13 of them sweep-fig4)
     python -m benchmarks --quick         # shorter runs
     python -m benchmarks gpi ols         # some: gpi training planning ols traffic memory optimum sharing
-                                         # copies ray-eval sweep sweep-fig4, and sweep-fig4-preset (only
-                                         # when named)
+                                         # copies ray-eval sweep sweep-fig4, and sweep-fig4-preset,
+                                         # known-fronts, known-fronts-minecart (only when named)
     python -m benchmarks --output results.md
+    python -m benchmarks known-fronts --seeds 0 1 2 --envs deep-sea-treasure resource-gathering fruit-tree
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
 repeats; the ratio is candidate speed / baseline speed (or baseline bytes / candidate bytes for memory),
-so > 1 means the candidate is better.
+so > 1 means the candidate is better. The known-fronts rows measure learning instead: expected utility of GPI
+against the exact optimum (EU/EU*) on MO-Gymnasium problems, per seed; ``--seeds`` and ``--envs`` go to the
+benchmarks that take them.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import importlib
+import inspect
 import os
 import platform
 import sys
@@ -40,9 +44,11 @@ BENCHMARKS = {
     "ray-eval": "benchmarks.bench_ray_eval",
     "sweep-fig4": "benchmarks.bench_sweep:run_fig4",
     "sweep-fig4-preset": "benchmarks.bench_sweep:run_fig4_preset",
+    "known-fronts": "benchmarks.bench_known_fronts",
+    "known-fronts-minecart": "benchmarks.bench_known_fronts:run_minecart",
 }
-#: Run only when named (about 50 minutes on 2 cores), not in the default "everything".
-ON_REQUEST = ("sweep-fig4-preset",)
+#: Run only when named (each takes many minutes on 2 cores), not in the default "everything".
+ON_REQUEST = ("sweep-fig4-preset", "known-fronts", "known-fronts-minecart")
 
 
 def _cpu_model() -> str:
@@ -112,7 +118,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("names", nargs="*", choices=[*BENCHMARKS, []], help=f"benchmarks to run (default: {default})")
     parser.add_argument("--quick", action="store_true", help="shorter runs")
     parser.add_argument("--output", type=Path, help="also write the markdown (header + table) to this file")
+    parser.add_argument("--seeds", type=int, nargs="+", help="seeds of the benchmarks that train (known-fronts)")
+    parser.add_argument("--envs", nargs="+", help="envs of the benchmarks that take some (known-fronts)")
     args = parser.parse_args(argv)
+    options = {key: value for key, value in (("seeds", args.seeds), ("envs", args.envs)) if value is not None}
     single_thread_torch()
     names = args.names or [name for name in BENCHMARKS if name not in ON_REQUEST]
     rows: list[Row] = []
@@ -123,7 +132,9 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         try:
             module, _, function = BENCHMARKS[name].partition(":")  # "module" runs module.run
-            rows.extend(getattr(importlib.import_module(module), function or "run")(quick=args.quick))
+            run = getattr(importlib.import_module(module), function or "run")
+            taken = {key: value for key, value in options.items() if key in inspect.signature(run).parameters}
+            rows.extend(run(quick=args.quick, **taken))
         except Exception:  # noqa: BLE001 - report and go on with the other benchmarks
             failed = True
             traceback.print_exc()
