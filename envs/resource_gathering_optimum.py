@@ -16,9 +16,11 @@ the time limit, so :func:`optimal_value` is the exact optimum of the env as it i
 **Why not the env's own front.** ``ResourceGathering.pareto_front(γ)`` lists six hand-made policies. Its returns
 are discounted one factor of γ too much (a reward on step ``n`` is worth ``γ^(n - 1)``, not ``γ^n``: the safe trip
 to the gem takes 10 steps and is worth ``γ^9``), and it misses the policy that fetches both resources by safe paths
-(6 steps to the gold, 7 from the gold to the gem around both enemies, 5 home). The optimum here is therefore above
-that front's best for every weight, by about a factor ``1/γ`` and more where the missed policy is the best one
-(``tests/test_known_fronts.py`` checks both, and the value against Monte-Carlo rollouts of the optimal policy).
+(6 steps to the gold, 7 from the gold to the gem around both enemies, 5 home). Each of its points is γ times the
+value of the policy it describes, and the optimum is never negative (going home at once is worth zero), so the
+optimum here is never below that front's best: above it by about a factor ``1/γ`` wherever some reward is worth
+having, and by more where the missed policy is the best one (``tests/test_known_fronts.py`` checks this on the
+test weights, and the value against Monte-Carlo rollouts of the optimal policy).
 """
 
 from __future__ import annotations
