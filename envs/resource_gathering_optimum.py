@@ -35,7 +35,7 @@ from .tabular_optimum import Outcome, TabularMDP, _time_limit
 __all__ = ["optimal_value", "resource_gathering_mdp"]
 
 _MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # (d_row, d_col) of up, down, left, right
-#: The default layout's numbers, as the env's source has them (``resource_gathering_mdp`` reads the layout itself).
+#: The chance that an enemy kills the agent on its cell, hard-coded in the env's ``step`` (the map is read).
 ENEMY_ATTACK_PROBABILITY = 0.1
 
 
