@@ -3,7 +3,7 @@
     python -m benchmarks                 # everything (about 26 minutes on 2 cores, 13 of them sweep-fig4)
     python -m benchmarks --quick         # shorter runs
     python -m benchmarks gpi ols         # some: gpi training planning ols traffic memory optimum sharing
-                                         # copies ray-eval sweep sweep-fig4, and sweep-fig4-preset (only
+                                         # copies ray-eval startup sweep sweep-fig4, and sweep-fig4-preset (only
                                          # when named)
     python -m benchmarks --output results.md
 
@@ -38,6 +38,7 @@ BENCHMARKS = {
     "sweep": "benchmarks.bench_sweep",
     "copies": "benchmarks.bench_copies",
     "ray-eval": "benchmarks.bench_ray_eval",
+    "startup": "benchmarks.bench_startup",
     "sweep-fig4": "benchmarks.bench_sweep:run_fig4",
     "sweep-fig4-preset": "benchmarks.bench_sweep:run_fig4_preset",
 }
