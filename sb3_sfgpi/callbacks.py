@@ -27,10 +27,8 @@ from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation, gpi_score
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
+from sb3_sfgpi.run_settings import VALUE_MODES
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
-
-#: How the values of new policies can be estimated (see :class:`ValueEstimation`)
-VALUE_MODES = ("joint", "shared")
 
 
 @dataclass(frozen=True)

@@ -25,49 +25,11 @@ from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.multiagent import SHARED, MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_logger import run_logger
+from sb3_sfgpi.run_settings import REMOVED_SETTINGS, SETTING_DEFAULTS, SETTINGS, acts_by_own_policies
 from sb3_sfgpi.schedules import make_schedule
-
-#: The settings stored in ``run.json`` (what :meth:`MASFOLS.load` rebuilds a run from).
-SETTINGS = (
-    "policy",
-    "weights",
-    "ols_batch",
-    "steps_per_iteration",
-    "learner_kwargs",
-    "test_weights",
-    "seed",
-    "value_mode",
-    "value_episodes",
-    "eval_episodes",
-    "gpi_set",
-    "validation_weights",
-    "prune",
-    "admit_together",
-    "sharing",
-    "n_envs",
-)
-#: Settings that runs written before they existed lack, with the value that reproduces those runs.
-SETTING_DEFAULTS = {
-    "validation_weights": 0,
-    "prune": False,
-    "admit_together": False,
-    "sharing": "independent",
-    "n_envs": 1,
-    "ols_batch": "top",
-}
-#: Settings of levers that were measured and removed (docs: experiments/levers), with the value that means "off":
-#: a run stored with another value cannot be continued by this version.
-REMOVED_SETTINGS = {"transfer": False, "gpi_behaviour": False, "replan": False}
-
-
-def acts_by_own_policies(fixed: bool, sharing: str) -> bool:
-    """
-    Whether each agent of a run is evaluated by GPI over the policies it learned itself: fixed weights (a priori
-    scalarised learners) with one learner per agent. Otherwise every agent acts by GPI over the whole set.
-    """
-    return fixed and sharing != SHARED
 
 
 class MASFOLS:
@@ -234,7 +196,7 @@ class MASFOLS:
                     raise ValueError(f"{self.run_dir} already holds a run: continue it with MASFOLS.load")
                 self.run_dir.write_config(self.run_info)
             if not self._logs_open:  # once: a later learn() goes on writing to the same files
-                self.runner.set_logger(self.run_dir.make_logger())  # continues logs/ where the checkpoint left it
+                self.runner.set_logger(run_logger(self.run_dir))  # continues logs/ where the checkpoint left it
                 self._logs_open = True
             return self._learn(max_iterations, callback, progress_bar)
 

@@ -37,6 +37,7 @@ from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
+from sb3_sfgpi.run_settings import SHARED, SHARINGS
 from sb3_sfgpi.sfdqn import SFDQN
 
 #: Builds the learner of an agent: ``(agent, per-agent VecEnv, weights, seed) -> SFDQN``.
@@ -55,12 +56,6 @@ def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
         return SFDQN(env=view, weights=weights, seed=seed, **kwargs)
 
     return make
-
-
-#: The name of the one learner all agents share (``sharing="shared"``).
-SHARED = "shared"
-#: How agents get their learners: one each, or one for all (:class:`MultiAgentRunner`'s ``sharing``).
-SHARINGS = ("independent", SHARED)
 
 
 class MultiAgentRunner:

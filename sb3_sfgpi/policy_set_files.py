@@ -37,10 +37,10 @@ from sb3_sfgpi.policy_files import (
     network_state,
     read_state_dict,
 )
+from sb3_sfgpi.run_directory import MANIFEST  # plain data: the name a run directory looks for too
 
 FORMAT = "sb3-sfgpi/policy-set"
 VERSION = 1
-MANIFEST = "manifest.json"
 
 
 @dataclass(frozen=True)

@@ -27,16 +27,22 @@ import shutil
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch as th
-from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoardOutputFormat
 
 from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json, read_json
-from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
 from sb3_sfgpi.run_lock import RunDirectoryBusy, RunLock, check_not_written
 from sb3_sfgpi.trust import check_learner_kwargs
+
+if TYPE_CHECKING:
+    import torch as th
+
+    from sb3_sfgpi.gpi import GPIPolicy
+
+#: The file of a policy-set directory that describes the set and names its other files (see
+#: :mod:`sb3_sfgpi.policy_set_files`).
+MANIFEST = "manifest.json"
 
 #: The columns of ``evaluation.csv``, in order.
 SUMMARY_FIELDS = (
@@ -268,6 +274,8 @@ class RunDirectory:
         """
         if not self.has_policy_set():
             raise ValueError(f"{self.path} has no policy set yet")
+        from sb3_sfgpi.gpi import GPIPolicy  # torch and SB3: only where Π is read, not where a run is looked at
+
         saved = GPIPolicy.load(self.policy_set_dir, device=device, retired=True)
         if n_policies is not None and n_policies > len(saved):
             raise ValueError(f"{self.policy_set_dir} holds {len(saved)} policies, the checkpoint {n_policies}")
@@ -336,40 +344,3 @@ class RunDirectory:
         if rows and rows[0].get("iteration") == "0":  # numbered from 0 before 2026-11-23
             return [{**row, "iteration": str(int(row["iteration"]) + 1)} for row in rows]
         return rows
-
-    # --- logs -----------------------------------------------------------------------------------------------
-    def make_logger(self) -> Logger:
-        """
-        The runner's SB3 logger on ``logs/``: ``progress.csv`` (one row per finished iteration) and TensorBoard.
-        An existing ``progress.csv`` is continued, not truncated: it keeps its header and the rows of the
-        iterations the checkpoint counts (those of an iteration killed before its checkpoint are dropped). The
-        TensorBoard scalars are written anew from ``evaluation.json``, so that they too hold each iteration the
-        checkpoint counts exactly once.
-        """
-        self.logs_dir.mkdir(parents=True, exist_ok=True)
-        done = self.read_checkpoint()["iteration"] if self.has_checkpoint() else 0
-        progress = _ContinuedCSV(str(self.logs_dir / "progress.csv"), keep_rows=done)
-        for events in self.logs_dir.glob("events.out.tfevents.*"):
-            events.unlink()
-        tensorboard = TensorBoardOutputFormat(str(self.logs_dir))
-        for row in self.read_history(done) if done else []:
-            scalars = summary_scalars(row)
-            tensorboard.write(scalars, dict.fromkeys(scalars, ()), step=row["iteration"])
-        return Logger(str(self.logs_dir), [progress, tensorboard])
-
-
-class _ContinuedCSV(CSVOutputFormat):
-    """SB3's CSV output, continuing an existing file from its header and its first ``keep_rows`` rows."""
-
-    def __init__(self, filename: str, keep_rows: int):
-        path = Path(filename)
-        lines = path.read_text().splitlines(keepends=True) if path.exists() else []
-        kept = lines[: 1 + keep_rows]
-        if kept != lines:
-            atomic_write_bytes(path, "".join(kept).encode())
-        # Not SB3's __init__, which opens the file with "w+" and so truncates it; SB3 closes the file.
-        self.file = open(filename, "r+" if path.exists() else "w+")
-        self.file.seek(0, io.SEEK_END)
-        self.keys: list[str] = next(csv.reader(kept[:1]), [])
-        self.separator = ","
-        self.quotechar = '"'

@@ -27,11 +27,10 @@ import numpy as np
 
 from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.ols import OLS, TOLERANCE
+from sb3_sfgpi.run_settings import OLS_BATCHES
 
 #: agent -> the weights it trains for in the next iteration
 AgentWeights = dict[str, np.ndarray]
-#: the ways :class:`OLSSchedule` takes a round's weights from the queue
-OLS_BATCHES = ("top", "same-after-extrema")
 #: settings that checkpoints written before they existed lack, with the value those checkpoints were written with
 _SETTINGS_BEFORE_THEY_EXISTED = {"batch": "top"}
 

@@ -16,23 +16,25 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import CLI_SETTINGS, DomainPreset, load_domain
 from sb3_sfgpi.cli.values import check_weights
-from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.serialization import atomic_write_json
 from sb3_sfgpi.common.weights import format_weights, same_weight
-from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, run_job
-from sb3_sfgpi.masfols import SETTING_DEFAULTS, acts_by_own_policies
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_settings import SETTING_DEFAULTS, acts_by_own_policies
+
+if TYPE_CHECKING:
+    from sb3_sfgpi.common.rollouts import EpisodeReturns
+    from sb3_sfgpi.evaluation import EvaluationJob
 
 COMPARE_FORMAT = "sb3-sfgpi/compare"
 #: (row header, job): what one row of the comparison evaluates
-Planned = tuple[dict[str, Any], EvaluationJob]
+Planned = tuple[dict[str, Any], "EvaluationJob"]
 
 
 def add_parser(sub: Any) -> None:
@@ -122,6 +124,8 @@ def _planned(
     args: argparse.Namespace, run_dir: RunDirectory, config: dict[str, Any], preset: DomainPreset, gpi_set: str
 ) -> list[Planned]:
     """Every method as a job on the same episode seeds: GPI at each weight, the fixed learners, the baselines."""
+    from sb3_sfgpi.evaluation import EvaluationJob  # the policy sets' evaluation (torch): once the options are checked
+
     fixed_runs = _fixed_runs(args, config, preset)
     weights = [check_weights(w, "--w") for w in (args.w or preset.compare_weights)]
     for _, fixed in fixed_runs:
@@ -160,6 +164,8 @@ def _planned(
 def _run(
     planned: list[Planned], preset: DomainPreset, env_kwargs: dict[str, Any], gamma: float, workers: int
 ) -> list[EpisodeReturns]:
+    from sb3_sfgpi.evaluation import ParallelEvaluator, run_job  # torch: here, not to read or plot a comparison
+
     if workers:
         with ParallelEvaluator(preset.make_env, env_kwargs, workers, gamma) as evaluator:
             return evaluator.run([job for _, job in planned])

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -14,8 +14,10 @@ from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_domain
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights, validate_weights
-from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.run_directory import RunDirectory
+
+if TYPE_CHECKING:
+    from sb3_sfgpi.gpi import GPIPolicy
 
 
 def add_parser(sub: Any) -> None:
@@ -47,18 +49,18 @@ def run(args: argparse.Namespace) -> int:
     config = run_dir.read_config(required=CLI_SETTINGS)
     which = args.gpi_set or config.get("gpi_set", "all")
     state = run_dir.read_checkpoint() if run_dir.has_checkpoint() else {"n_policies": None, "iteration": None}
-    policy_set = run_dir.load_policy_set(state["n_policies"], args.device, state["iteration"])  # Π at the checkpoint
-    if which == "ccs":
-        policy_set = policy_set.ccs_policies()
     if args.random_weights is not None and args.random_weights < 1:
         raise UsageError(f"--random-weights must be positive, got {args.random_weights}")
-    w = None if args.w is None else validate_weights(args.w, policy_set.reward_dim, "--w")
-    if args.members and w is None:
+    if args.members and args.w is None:
         raise UsageError("--members needs --w (each policy is run alone for those weights)")
     if args.episodes < 1:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
     if args.seed < 0:
         raise UsageError(f"--seed must be 0 or more (the environment's reset seed), got {args.seed}")
+    policy_set = run_dir.load_policy_set(state["n_policies"], args.device, state["iteration"])  # Π at the checkpoint
+    if which == "ccs":
+        policy_set = policy_set.ccs_policies()
+    w = None if args.w is None else validate_weights(args.w, policy_set.reward_dim, "--w")
     preset = load_domain(config["domain"])
     env = preset.build_env(preset.run_file_env(config["env_kwargs"], run_dir))
     gamma = config["learner_kwargs"].get("gamma", 0.99)

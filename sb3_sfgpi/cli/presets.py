@@ -15,8 +15,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.multiagent import SHARINGS
-from sb3_sfgpi.schedules import OLS_BATCHES
+from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS
 from sb3_sfgpi.trust import refuse_unlisted
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"

@@ -9,12 +9,10 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from sb3_sfgpi.callbacks import VALUE_MODES
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import DomainPreset
 from sb3_sfgpi.cli.values import key_values
-from sb3_sfgpi.multiagent import SHARINGS
-from sb3_sfgpi.schedules import OLS_BATCHES
+from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, VALUE_MODES
 
 
 def _count(minimum: int) -> Callable[[Any], bool]:

@@ -9,19 +9,19 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from sb3_sfgpi.admission import Admission
-from sb3_sfgpi.callbacks import ValueEstimation
 from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
 from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_domain
 from sb3_sfgpi.cli.settings import SETTABLE, check_resumed, method_settings
 from sb3_sfgpi.cli.values import check_weights, key_values
-from sb3_sfgpi.evaluation import EvaluationConfig
-from sb3_sfgpi.masfols import MASFOLS, SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_settings import SETTING_DEFAULTS
+
+if TYPE_CHECKING:
+    from sb3_sfgpi.masfols import MASFOLS
 
 ALGORITHMS = {"ma-sfols": "ols", "random": "random"}  # --algo -> MASFOLS weights (fixed: the --w weights)
 
@@ -233,6 +233,12 @@ def _model(
     args: argparse.Namespace, preset: DomainPreset, env: Any, run_dir: RunDirectory, config: dict[str, Any]
 ) -> MASFOLS:
     """A new MASFOLS for the run, or the stored one continued (``--resume``)."""
+    # The learners (torch, SB3, scipy): imported once the options and the run directory are checked.
+    from sb3_sfgpi.admission import Admission
+    from sb3_sfgpi.callbacks import ValueEstimation
+    from sb3_sfgpi.evaluation import EvaluationConfig
+    from sb3_sfgpi.masfols import MASFOLS
+
     env_fn = functools.partial(preset.make_env, **config["env_kwargs"])
     if args.resume:
         run_dir.write_config(config)

@@ -14,13 +14,22 @@ whichever action the kernel rounded up, and a seeded run gave different numbers 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
-from typing import TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
-import torch as th
 
-Array = TypeVar("Array", np.ndarray, th.Tensor)
+if TYPE_CHECKING:
+    import torch as th
+
+Array = TypeVar("Array", np.ndarray, "th.Tensor")
+
+
+def _is_tensor(value: Any) -> bool:
+    """Whether ``value`` is a torch tensor, without importing torch: there is none unless torch was imported."""
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(value, torch.Tensor)
 
 
 def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndarray:
@@ -36,7 +45,7 @@ def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndar
     :return: float64 array of shape ``(reward_dim,)`` with ``w >= 0`` and ``sum(w) == 1``
     :raises ValueError: wrong length, NaN or infinite, negative, or all-zero weights
     """
-    if isinstance(weights, th.Tensor):  # one that requires grad too
+    if _is_tensor(weights):  # one that requires grad too
         weights = weights.detach().cpu().numpy()
     try:
         w = np.asarray(weights, dtype=np.float64)
@@ -73,8 +82,9 @@ def weighted_sum(values: Array, weights: np.ndarray | th.Tensor) -> Array:
         dtype (and device) of ``values``
     :return: shape ``values.shape[:-1]``, in the dtype of ``values``
     """
-    if isinstance(values, th.Tensor):
-        w = th.as_tensor(weights, dtype=values.dtype, device=values.device)
+    if _is_tensor(values):
+        torch = sys.modules["torch"]  # imported: values is a tensor
+        w = torch.as_tensor(weights, dtype=values.dtype, device=values.device)
         return _sum_of_columns(values * w)
     w = np.asarray(weights, dtype=values.dtype)
     if values.size <= _SMALL:  # one product of the whole array (fewest calls; same operations, same order)
@@ -92,7 +102,7 @@ _SMALL = 2048
 def _sum_of_columns(products: Array) -> Array:
     """``(p_0 + p_1) + p_2 + ...`` over the last axis."""
     if products.shape[-1] == 1:
-        return products[..., 0].clone() if isinstance(products, th.Tensor) else products[..., 0].copy()
+        return products[..., 0].clone() if _is_tensor(products) else products[..., 0].copy()
     total = products[..., 0] + products[..., 1]
     for k in range(2, products.shape[-1]):
         total += products[..., k]
