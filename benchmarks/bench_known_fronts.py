@@ -30,6 +30,8 @@ from typing import Any
 
 import mo_gymnasium as mo
 import numpy as np
+from sfgpi_envs.resource_gathering_optimum import resource_gathering_mdp
+from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_tree_mdp
 
 from benchmarks._common import Row
 from sb3_sfgpi import MASFOLS, EvaluationConfig
@@ -37,8 +39,6 @@ from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.callbacks import ValueEstimation
 from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, TABULAR_LEARNER
 from sb3_sfgpi.common.weights import random_weights
-from sfgpi_envs.resource_gathering_optimum import resource_gathering_mdp
-from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_tree_mdp
 
 NAME = "known fronts"
 N_TEST_WEIGHTS = 50

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from sb3_sfgpi.common.weights import random_weights
 from sfgpi_envs.resource_gathering_optimum import optimal_value, resource_gathering_mdp
 from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_tree_mdp
+
+from sb3_sfgpi.common.weights import random_weights
 
 mo = pytest.importorskip("mo_gymnasium")
 
