@@ -17,7 +17,8 @@ SUMO runs in-process through libsumo (default), or through TraCI (``backend="tra
 opens sumo-gui). The environment advances SUMO one second at a time and drives the lights itself
 with ``setRedYellowGreenState``, so SUMO's static program never advances on its own. With
 ``signal_control="fixed-time"`` or ``"actuated"`` the lights follow SUMO's static or actuated program
-instead and actions are ignored (the baselines, see :func:`.baselines.run_program_episode`).
+instead, and with ``"max-pressure"`` the env's phase logic shows the green of largest vehicle pressure
+(:mod:`.max_pressure`); actions are then ignored (the baselines, see :func:`.baselines.run_program_episode`).
 
 Example::
 
@@ -43,6 +44,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from .max_pressure import MaxPressure
 from .monitor import IntersectionMonitor, Measurement
 from .objectives import DEFAULT_OBJECTIVES, reward_scales, select_objectives
 from .scenario import NET_FILE, ROUTE_FILE, trim_demand, warn_if_no_demand, write_actuated_programs
@@ -50,8 +52,8 @@ from .signals import SignalController, SignalProgram, is_green
 from .sumo_backend import SumoSimulation
 from .topology import IntersectionLayout, read_network
 
-SIGNAL_CONTROLS = ("agent", "fixed-time", "actuated")
-"""Who drives the lights: the agents, SUMO's static program, or SUMO's actuated program."""
+SIGNAL_CONTROLS = ("agent", "fixed-time", "actuated", "max-pressure")
+"""Who drives the lights: the agents, SUMO's static or actuated program, or max-pressure (:mod:`.max_pressure`)."""
 
 ACTION_MODES = ("change", "phase")
 """What an action says: keep (0) / change to the next green (1), or the index of the green to show."""
@@ -136,9 +138,10 @@ class TrafficSignalEnv(ParallelEnv):
         (``"pedestrian_waiting"`` needs a network with signalised crossings).
     :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green).
     :param signal_control: ``"agent"`` (actions drive the lights), ``"fixed-time"`` (SUMO's static
-        program in the network) or ``"actuated"`` (SUMO's gap-based actuated program: the static
-        program's phases, greens between ``min_green`` and ``max_green``, or ``actuated_file``);
-        in the last two cases actions are ignored.
+        program in the network), ``"actuated"`` (SUMO's gap-based actuated program: the static
+        program's phases, greens between ``min_green`` and ``max_green``, or ``actuated_file``) or
+        ``"max-pressure"`` (every ``delta_time`` the green of largest vehicle pressure, through the agents'
+        phase logic, :mod:`.max_pressure`); in the last three cases actions are ignored.
     :param backend: ``"libsumo"`` (in-process, fast; one live simulation per process) or ``"traci"``;
         default: libsumo, or traci when ``gui`` is set.
     :param gui: show the simulation in sumo-gui (TraCI backend).
@@ -201,6 +204,8 @@ class TrafficSignalEnv(ParallelEnv):
         self.reward_scale = reward_scales(reward_scale, self.objective_names)
         self.action_mode = action_mode
         self.signal_control = signal_control
+        self._drives = signal_control in ("agent", "max-pressure")  # the env's controllers set the lights
+        self._max_pressure: MaxPressure | None = None
         self.render_mode = render_mode
         self.gui = gui or render_mode == "human"
         self.backend = backend if backend is not None else ("traci" if self.gui else "libsumo")
@@ -397,7 +402,7 @@ class TrafficSignalEnv(ParallelEnv):
             for mon in self._monitors:
                 mon.reset()
             self._time = int(round(api.simulation.getTime()))
-            if self.signal_control == "agent":
+            if self._drives:
                 for a, ctl in zip(self.possible_agents, self._controllers, strict=True):
                     self._set_state(a, ctl.reset(self._time))
             else:
@@ -420,6 +425,8 @@ class TrafficSignalEnv(ParallelEnv):
                           sim.getArrivedPersonNumber)  # fmt: skip
         emissions = "co2" in self.objective_names
         self._monitors = [IntersectionMonitor(api, self.layouts[a], emissions=emissions) for a in self.possible_agents]
+        if self.signal_control == "max-pressure":
+            self._max_pressure = MaxPressure.from_simulation(api, self._programs, self.layouts, self._controllers)
 
     def _active_program(self, tls: str) -> SignalProgram:
         tl = self._api.trafficlight
@@ -448,13 +455,15 @@ class TrafficSignalEnv(ParallelEnv):
         """
         if not self.agents:
             raise RuntimeError("no episode is running: call reset() first")
-        agent_mode = self.signal_control == "agent"
+        agent_mode, drives = self.signal_control == "agent", self._drives
         acts = [self._checked_action(a, actions) for a in self.possible_agents] if agent_mode else []
         agents = self.possible_agents
         try:
-            if agent_mode:
+            if self._max_pressure is not None:
+                acts = self._max_pressure.decide(self._controllers)  # the greens it asks for, as phase actions
+            if drives:
                 self._apply_actions(acts)
-            self._simulate(min(self.delta_time, self._end - self._time), self._controllers if agent_mode else ())
+            self._simulate(min(self.delta_time, self._end - self._time), self._controllers if drives else ())
             measures = [mon.measure() for mon in self._monitors]
             obs = {a: self._observe(i) for i, a in enumerate(agents)}
         except self._sim.errors as exc:
@@ -473,8 +482,9 @@ class TrafficSignalEnv(ParallelEnv):
         return obs, rewards, terminations, truncations, infos
 
     def _apply_actions(self, acts: list[int | None]) -> None:
-        """Hand each agent's action (``None``: keep) to its controller and show the state it asks for."""
-        apply = SignalController.request if self.action_mode == "phase" else SignalController.act
+        """Hand each agent's action (``None``: keep; max-pressure's: a green) to its controller, show what it asks."""
+        phase = self.action_mode == "phase" or self._max_pressure is not None
+        apply = SignalController.request if phase else SignalController.act
         for a, ctl, act in zip(self.possible_agents, self._controllers, acts, strict=True):
             state = None if act is None else apply(ctl, act, self._time)
             if state is not None:
@@ -526,7 +536,7 @@ class TrafficSignalEnv(ParallelEnv):
 
     # -------------------------------------------------------------------------- observation / info
     def _observe(self, i: int) -> np.ndarray:
-        if self.signal_control == "agent":
+        if self._drives:
             ctl = self._controllers[i]
             green = ctl.green
             tau = min(1.0, ctl.elapsed_green(self._time) / self.max_green)
@@ -543,7 +553,7 @@ class TrafficSignalEnv(ParallelEnv):
     def _info(self, i: int) -> dict[str, Any]:
         last = self._last[i]
         w_v, n_v, w_p, n_p = last.vehicle_wait, last.vehicles, last.pedestrian_wait, last.pedestrians
-        if self.signal_control == "agent":
+        if self._drives:
             green, yellow = self._controllers[i].green, self._controllers[i].in_yellow
         else:
             state = self._api.trafficlight.getRedYellowGreenState(self.possible_agents[i])

@@ -12,7 +12,7 @@ Time is in whole simulated seconds (the environment steps SUMO one second at a t
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 KEEP = 0
@@ -103,7 +103,7 @@ class SignalController:
       ``min_green`` seconds of green is ignored (the green is kept), or, with ``defer_early``, made by
       :meth:`tick` when the green reaches ``min_green`` seconds, unless a later decision asks otherwise;
     * a green that reaches ``max_green`` seconds is ended by :meth:`tick` whatever the agent wants
-      (the next green of the cycle follows);
+      (the next green of the cycle follows, or the one :attr:`after_max_green` chooses);
     * between two greens the yellow state is shown for exactly ``yellow_time`` seconds;
     * during yellow, actions are ignored.
 
@@ -125,6 +125,7 @@ class SignalController:
         "green_start",
         "yellow_end",
         "deferred",
+        "after_max_green",
     )
 
     def __init__(
@@ -143,6 +144,8 @@ class SignalController:
         self.green_start = 0
         """Time the current green started (during yellow: when it will start)."""
         self.yellow_end = 0
+        self.after_max_green: Callable[[int], int] | None = None
+        """Given the green ended by ``max_green``, the (other) green that follows; ``None``: the next of the cycle."""
 
     def reset(self, time: int, green: int = 0) -> str:
         """Start green phase ``green`` at ``time``.
@@ -207,7 +210,8 @@ class SignalController:
         if self.deferred is not None and time - self.green_start >= self.min_green:
             return self._start_yellow(time, self.deferred)
         if time - self.green_start >= self.max_green:
-            return self._start_yellow(time, self._next())
+            after = self.after_max_green
+            return self._start_yellow(time, self._next() if after is None else after(self.green))
         return None
 
     def _next(self) -> int:
