@@ -138,7 +138,11 @@ def traffic() -> dict[str, Any]:
         "eval_workers": 2,
         # for `sb3-sfgpi compare` and its plots
         "objectives": ["vehicles", "pedestrians"],  # rewards: minus their scaled waiting in each step
-        "baselines": {"fixed-time": {"signal_control": "fixed-time"}, "actuated": {"signal_control": "actuated"}},
+        "baselines": {
+            "fixed-time": {"signal_control": "fixed-time"},
+            "actuated": {"signal_control": "actuated"},
+            "max-pressure": {"signal_control": "max-pressure"},
+        },
         "episode_metrics": [
             ["vehicle_waiting_time_mean", "mean vehicle waiting time [s]"],
             ["pedestrian_waiting_time_mean", "mean pedestrian waiting time [s]"],

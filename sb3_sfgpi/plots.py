@@ -38,6 +38,7 @@ METRIC_LABELS = {
 }
 LABELS = {"ma-sfols": "MA-SFOLS + GPI", "random": "Random + GPI", "fixed": "fixed-weight learners"}
 REFERENCE_COLORS = ("black", "tab:gray", "tab:brown")  # reference lines, apart from the algorithms' colours
+BASELINE_STYLES = ("--", "-.", ":")  # the comparison's baselines (fixed-time, actuated, max-pressure): one each
 TITLE_WIDTH = 60  # characters per line of a title: a 6-inch figure holds about this many
 
 
@@ -234,7 +235,7 @@ def plot_step_metrics(
 
 def plot_versus(compare: dict[str, Any], output_dir: Path, smooth: int = 10) -> list[Path]:
     """
-    For each weight with a fixed-weight learner: GPI and that learner (and the program baselines, dashed),
+    For each weight with a fixed-weight learner: GPI and that learner (and the baselines, dashed, dash-dotted, dotted),
     one panel per objective, per-step metric over the episode, mean ± std over episodes (paper Figs. 11-15).
 
     :param compare: a comparison (``sb3-sfgpi compare``)
@@ -260,10 +261,11 @@ def plot_versus(compare: dict[str, Any], output_dir: Path, smooth: int = 10) -> 
         fig, axes = plt.subplots(1, len(metrics), figsize=(6 * len(metrics), 4), squeeze=False)
         for ax, (_, name, key, label) in zip(axes[0], metrics, strict=True):
             curves = [(gpi[w], "MA-SFOLS + GPI", "-")] if w in gpi else []
-            curves += [(r, r["label"], "-") for r in learners] + [(r, r["label"], "--") for r in baselines]
+            curves += [(r, r["label"], "-") for r in learners]
+            curves += [(r, r["label"], style) for r, style in zip(baselines, itertools.cycle(BASELINE_STYLES))]
             for curve, text, style in curves:
                 x, mean, std = _trace(curve, key, smooth)
-                (line,) = ax.plot(x, mean, style, label=text, lw=1.5 if style == "-" else 1.0)
+                (line,) = ax.plot(x, mean, linestyle=style, label=text, lw=1.5 if style == "-" else 1.2)
                 if style == "-":
                     ax.fill_between(x, mean - std, mean + std, alpha=0.15, color=line.get_color())
             ax.set_xlabel("simulated time [s]")

@@ -37,6 +37,7 @@ def figures(monkeypatch) -> list[dict]:
                 "title": ax.get_title(),
                 "ylim": ax.get_ylim(),
                 "lines": [(line.get_label(), line.get_xydata().copy()) for line in ax.get_lines()],
+                "styles": [(line.get_label(), line.get_linestyle(), line.get_marker()) for line in ax.get_lines()],
                 "legend": [text.get_text() for text in ax.get_legend().get_texts()] if ax.get_legend() else [],
             }
             for ax in fig.axes
@@ -320,6 +321,22 @@ def test_plot_tradeoff_puts_the_two_episode_metrics_on_the_axes(tmp_path, compar
     np.testing.assert_allclose(gpi, [[40.0, 10.0], [20.0, 20.0], [10.0, 40.0]])
     points = {tuple(xy[0]) for _, xy in ax["lines"] if len(xy) == 1}  # the other methods: one marker each
     assert {(22.0, 21.0), (30.0, 30.0)} <= points
+
+
+def test_three_baselines_are_drawn_apart(tmp_path, compare, figures):
+    names = ["fixed-time", "actuated", "max-pressure"]
+    rows = compare["rows"][:-1] + [compare_row("baseline", None, n, 30.0 + i, 30.0 - i) for i, n in enumerate(names)]
+    compare = {**compare, "rows": rows}
+    plots.plot_versus(compare, tmp_path, smooth=1)
+    plots.plot_tradeoff(compare, tmp_path / "tradeoff.png")
+    versus, tradeoff = figures[0]["axes"][0], figures[1]["axes"][0]
+    assert versus["legend"][-3:] == tradeoff["legend"][-3:] == names
+    styles = {label: style for label, style, _ in versus["styles"] if label in names}
+    assert len(set(styles.values())) == 3 and "-" not in styles.values()  # dashed, dash-dotted, dotted
+    caps = ("|", "_")  # the error bars' ends
+    points = [m for (_, _, m), (_, xy) in zip(tradeoff["styles"], tradeoff["lines"], strict=True) if len(xy) == 1]
+    points = [m for m in points if m not in caps]
+    assert len(points) == len(set(points)) == 4  # the learner and each baseline: a marker of its own
 
 
 def test_comparison_plots_refuse_what_they_cannot_draw(tmp_path, compare):

@@ -379,7 +379,7 @@ def test_seed_controls_sumo(make_env):
     assert not np.array_equal(r1, r3)
 
 
-@pytest.mark.parametrize("program", ["fixed-time", "actuated"])
+@pytest.mark.parametrize("program", ["fixed-time", "actuated", "max-pressure"])
 def test_run_program_episode(program):
     m = run_program_episode(program, seed=0)
     assert set(m) == set(EPISODE_METRIC_KEYS)

@@ -179,7 +179,8 @@ def test_fixed_weight_learners_compare_and_plots(tmp_path):
     compare = json.loads(output.read_text())
     labels = [row["label"] for row in compare["rows"]]
     assert labels == [
-        "GPI w=[1,0]", "GPI w=[0,1]", "GPI w=[0.4,0.6]", "scalarized w=[0.4,0.6]", "fixed-time", "actuated"
+        "GPI w=[1,0]", "GPI w=[0,1]", "GPI w=[0.4,0.6]", "scalarized w=[0.4,0.6]", "fixed-time", "actuated",
+        "max-pressure",
     ]  # fmt: skip
     for row in compare["rows"]:
         assert set(row["episode_metrics"]) == {"vehicle_waiting_time_mean", "pedestrian_waiting_time_mean"}

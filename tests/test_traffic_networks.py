@@ -144,7 +144,7 @@ def test_begin_time_starts_where_the_demand_does():
     assert at_seven["vehicles_departed"] > 10 and at_seven["sim_time"] == 120
 
 
-@pytest.mark.parametrize("program", ["fixed-time", "actuated"])
+@pytest.mark.parametrize("program", ["fixed-time", "actuated", "max-pressure"])
 def test_sumo_programs_run_on_any_network(program):
     metrics = run_program_episode(program, seed=0, num_seconds=300, objectives=TWO, **GRID)
     assert metrics["vehicles_departed"] > 50 and metrics["vehicle_waiting_time_mean"] > 0
