@@ -4,7 +4,7 @@ Public names:
 
 * :class:`TrafficSignalEnv` -- the ``ParallelEnv`` on any SUMO network with traffic lights (one agent per light,
   rewards from :data:`OBJECTIVE_MENU`, by default ``[vehicle, pedestrian]`` waiting-time decrease);
-* :func:`run_program_episode` -- fixed-time / actuated baselines with the same metrics;
+* :func:`run_program_episode` -- fixed-time / actuated / max-pressure baselines with the same metrics;
 * :data:`NET_FILE`, :data:`ROUTE_FILE` -- the three-intersection scenario;
 * :class:`SumoNotFoundError`, :class:`SumoLoadError` -- installation and loading errors.
 
