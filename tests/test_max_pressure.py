@@ -13,9 +13,10 @@ import pytest
 
 pytest.importorskip("libsumo")
 
-from sb3_sfgpi.cli import main  # noqa: E402
 from sfgpi_envs.traffic import NET_FILE, SignalProgram, TrafficSignalEnv, run_program_episode  # noqa: E402
 from sfgpi_envs.traffic.max_pressure import MaxPressure, best_phase, phase_movements, phase_pressures  # noqa: E402
+
+from sb3_sfgpi.cli import main  # noqa: E402
 
 _SPEC = importlib.util.find_spec("sumo_rl")  # located, not imported: importing sumo_rl needs SUMO_HOME
 _GRID = None if _SPEC is None or _SPEC.origin is None else Path(_SPEC.origin).parent / "nets" / "2x2grid"
