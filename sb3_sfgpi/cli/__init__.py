@@ -42,3 +42,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (TrainingStopped, OSError) as error:  # OSError: a full disk, a file that cannot be written
         print(f"sb3-sfgpi {args.command}: error: {error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # Ctrl-C before a command's own handling starts (train and sweep report theirs)
+        print(f"sb3-sfgpi {args.command}: error: interrupted", file=sys.stderr)
+        return 1

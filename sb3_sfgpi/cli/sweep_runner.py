@@ -16,9 +16,11 @@ import contextlib
 import datetime
 import json
 import os
+import signal
 import socket
+import threading
 import unicodedata
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +30,9 @@ from tqdm.auto import tqdm
 from sb3_sfgpi.common.serialization import atomic_write_json
 from sb3_sfgpi.common.weights import format_weights
 from sb3_sfgpi.run_directory import RunDirectory
+
+#: Seconds between two looks at the Ctrl-C flag while the runs go on.
+POLL_SECONDS = 1.0
 
 ALGORITHMS = ("ma-sfols", "random", "fixed")
 #: The file of a run directory where the sweep records the run's spec, attempts and end.
@@ -271,20 +276,71 @@ def run_sweep(
     pending = [spec for spec in specs if spec.run_name not in outcomes]
     bar = tqdm(total=len(specs), initial=len(outcomes), desc="sweep", unit="run", disable=not progress_bar)
     if pending:
-        ray = _ray(address, num_cpus)
-        cpus = min(cpus_per_run, ray.cluster_resources().get("CPU", cpus_per_run))
-        task = ray.remote(train_run).options(num_cpus=cpus, max_retries=max_retries, retry_exceptions=[RuntimeError])
-        refs = {task.remote(spec, out / spec.run_name): spec for spec in pending}
-        try:
-            while refs:
-                (ready,), _ = ray.wait(list(refs), num_returns=1)
-                spec = refs.pop(ready)
-                outcomes[spec.run_name] = _collect(ray, ready, spec, out / spec.run_name)
-                bar.update(1)
-        except KeyboardInterrupt:  # Ctrl-C: the runs stop (their checkpoints stay); the outcomes so far are returned
-            _interrupted(ray, refs, outcomes, out)
+        _run_pending(pending, out, outcomes, bar, address, num_cpus, cpus_per_run, max_retries)
     bar.close()
     return [outcomes[name] for name in names]
+
+
+def _run_pending(
+    pending: list[RunSpec],
+    out: Path,
+    outcomes: dict[str, RunOutcome],
+    bar: Any,
+    address: str | None,
+    num_cpus: int | None,
+    cpus_per_run: float,
+    max_retries: int,
+) -> None:
+    """
+    The runs not finished before, as Ray tasks, their outcomes recorded as they end. Ctrl-C at any moment, Ray's
+    start-up included (which a KeyboardInterrupt would leave half done), stops them: the handler only sets a flag,
+    looked at once Ray is up and every :data:`POLL_SECONDS`; the runs are cancelled (their checkpoints stay) and
+    recorded as ``interrupted``.
+    """
+    ray, refs = None, {}
+    with _ctrl_c_flag() as interrupted:
+        try:
+            ray = _ray(address, num_cpus)
+            if interrupted.is_set():
+                raise KeyboardInterrupt
+            cpus = min(cpus_per_run, ray.cluster_resources().get("CPU", cpus_per_run))
+            task = ray.remote(train_run).options(
+                num_cpus=cpus, max_retries=max_retries, retry_exceptions=[RuntimeError]
+            )
+            refs = {task.remote(spec, out / spec.run_name): spec for spec in pending}
+            while refs:
+                if interrupted.is_set():
+                    raise KeyboardInterrupt
+                ready, _ = ray.wait(list(refs), num_returns=1, timeout=POLL_SECONDS)
+                for ref in ready:
+                    spec = refs.pop(ref)
+                    outcomes[spec.run_name] = _collect(ray, ref, spec, out / spec.run_name)
+                    bar.update(1)
+        except KeyboardInterrupt:
+            _interrupted(ray, refs, outcomes, out)
+            for spec in pending:  # interrupted before Ray took them
+                outcomes.setdefault(spec.run_name, _outcome(spec, out / spec.run_name, "interrupted"))
+
+
+@contextlib.contextmanager
+def _ctrl_c_flag() -> Iterator[threading.Event]:
+    """
+    An event set by Ctrl-C (SIGINT) instead of a KeyboardInterrupt, for the time of the ``with`` block. Off the main
+    thread, where no handler can be installed, an event that is never set (a KeyboardInterrupt stays as it is).
+    """
+    interrupted = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield interrupted
+        return
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        interrupted.set()
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield interrupted
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _interrupted(ray: Any, refs: dict[Any, RunSpec], outcomes: dict[str, RunOutcome], out: Path) -> None:
