@@ -71,6 +71,12 @@ def test_sfols_reaches_the_true_front_of_deep_sea_treasure():
     assert 0 <= int(action) < 4
 
 
+def test_sfdqn_takes_an_mo_gymnasium_id():
+    model = SFDQN("TabularPolicy", DST, learning_starts=0, seed=0).learn(200)
+    assert model.reward_dim == 2 and model.num_timesteps == 200
+    assert model.get_env().get_attr("reward_space")[0].shape == (2,)
+
+
 def test_relative_optimism_is_read_from_the_reward_space():
     model = SFDQN("TabularPolicy", mo.make(DST), planning_sweeps=1, optimistic_init="rmax_2")
     assert model.optimistic_value == pytest.approx(2 * 23.7, rel=1e-6)  # DST's largest treasure

@@ -19,7 +19,7 @@ from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.checks import check_finite, env_name
 from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
-from sb3_sfgpi.common.vec_env import vec_env_reward_dim, wrap_mo_env
+from sb3_sfgpi.common.vec_env import make_mo_vec_env, vec_env_reward_dim, wrap_mo_env
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.options import (
@@ -51,7 +51,8 @@ class SFDQN(OffPolicyAlgorithm):
     (``rollout/ep_rew_mean`` = ``w · return``) and per objective (``rollout/ep_rew_mean_<i>``).
 
     :param policy: The policy model to use (``"MlpPolicy"``, ``"TabularPolicy"``, or a class)
-    :param env: The environment to learn from (if registered in Gym, can be str)
+    :param env: The environment to learn from (a registered id, MO-Gymnasium's included, is made by
+        :func:`~sb3_sfgpi.common.vec_env.make_mo_vec_env`)
     :param weights: Preference weights ``w`` (length ``d``); ``None`` for equal weights
     :param learning_rate: The learning rate (``α`` of the tabular policy), constant or a schedule; ``"lin_X"``: from
         ``X`` linearly down to 0 over each call of :meth:`learn` (:func:`learning_rate_schedule`)
@@ -152,7 +153,7 @@ class SFDQN(OffPolicyAlgorithm):
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
         super().__init__(
             policy,
-            env,
+            make_mo_vec_env(env) if isinstance(env, str) else env,  # SB3's gym.make would wrap a scalar Monitor
             learning_rate,
             buffer_size,
             learning_starts,
