@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from sfgpi_envs.traffic.sumo_backend import SumoNotFoundError
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -191,6 +192,8 @@ def check_command(argv: list[str], state: CliState) -> None:
 def run_python(code: str, namespace: dict, where: str) -> None:
     try:
         exec(compile(code, where, "exec"), namespace)
+    except SumoNotFoundError as error:  # a machine without SUMO (a GPU box's offline install): the page cannot run
+        pytest.skip(f"{where}: {error}")
     except Exception as error:  # noqa: BLE001 - report which block broke
         raise AssertionError(f"{where}: {type(error).__name__}: {error}") from error
 
@@ -244,7 +247,7 @@ def test_the_block_checks_can_fail(tmp_path, monkeypatch) -> None:
 
 def sphinx_build(source: Path, out: Path) -> tuple[int, str]:
     """Build ``source`` into ``out`` in this process (the package is imported once): exit code and warnings."""
-    from sphinx.cmd.build import build_main
+    build_main = pytest.importorskip("sphinx.cmd.build", reason="Sphinx is in the dev extra").build_main
 
     warnings = out.parent / f"{out.name}-warnings.txt"
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as stderr:

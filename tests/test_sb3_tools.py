@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import sys
+import warnings
 
 import gymnasium as gym
 import mo_gymnasium
@@ -18,7 +19,7 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 from sb3_sfgpi import SFDQN, GPIPolicy, MOEvalCallback, make_mo_vec_env, mo_evaluate_policy
-from sb3_sfgpi.common.vec_env import MODummyVecEnv, MOMonitor
+from sb3_sfgpi.common.vec_env import MODummyVecEnv, MOMonitor, import_registering_package
 
 DST = "deep-sea-treasure-v0"
 RIGHT, DOWN = 3, 1
@@ -329,3 +330,17 @@ def test_make_mo_vec_env_without_mo_gymnasium_says_what_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "mo_gymnasium", None)  # import mo_gymnasium raises ImportError
     with pytest.raises(ImportError, match="install mo-gymnasium"):
         make_mo_vec_env("not-registered-v0")
+
+
+def test_registering_mo_gymnasium_hides_only_pygames_pkg_resources_warning(tmp_path, monkeypatch):
+    """Under a recent setuptools, pygame's import warns that pkg_resources is deprecated; a CLI error stays one line."""
+    (tmp_path / "warns_on_import.py").write_text(
+        "import warnings\n"
+        "warnings.warn('pkg_resources is deprecated as an API. See https://setuptools.pypa.io', UserWarning)\n"
+        "warnings.warn('something the user must see', UserWarning)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        import_registering_package("warns_on_import")
+    assert [str(w.message) for w in caught] == ["something the user must see"]

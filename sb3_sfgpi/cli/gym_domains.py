@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import importlib
 from typing import Any
 
 import gymnasium as gym
@@ -18,7 +17,7 @@ import numpy as np
 
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.common.single_agent import SingleAgentParallelEnv
-from sb3_sfgpi.common.vec_env import env_reward_dim
+from sb3_sfgpi.common.vec_env import env_reward_dim, import_registering_package
 
 #: Packages whose import registers multi-objective ids in Gymnasium's registry (imported when installed).
 REGISTERING_PACKAGES = ("mo_gymnasium",)
@@ -105,4 +104,4 @@ def _n_states(observation_space: gym.Space) -> float:
 def _register_ids() -> None:
     for package in REGISTERING_PACKAGES:
         with contextlib.suppress(ImportError):
-            importlib.import_module(package)
+            import_registering_package(package)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import time
+import warnings
 from collections.abc import Callable
 from typing import Any, SupportsFloat
 
@@ -224,6 +225,17 @@ def _make_env(env_id: str | Callable[..., gym.Env], env_kwargs: dict[str, Any]) 
     return gym.make(env_id, **{"disable_env_checker": True, **env_kwargs})
 
 
+def import_registering_package(package: str) -> None:
+    """Import ``package``, whose import registers env ids in Gymnasium's registry (MO-Gymnasium does).
+
+    Hides the one warning of its import that is not the user's business: pygame, which MO-Gymnasium's envs import,
+    warns that ``pkg_resources`` is deprecated under a recent setuptools; a CLI error must stay one line.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="pkg_resources is deprecated", category=UserWarning)
+        importlib.import_module(package)
+
+
 def _register_env_id(env_id: str) -> None:
     """Make sure Gymnasium knows ``env_id``, importing MO-Gymnasium (which registers its envs) if it does not."""
     try:
@@ -232,7 +244,7 @@ def _register_env_id(env_id: str) -> None:
     except gym.error.Error:
         pass
     try:
-        importlib.import_module("mo_gymnasium")
+        import_registering_package("mo_gymnasium")
     except ImportError as error:
         raise ImportError(
             f"{env_id!r} is not a registered Gymnasium env id; if it is an MO-Gymnasium env, install mo-gymnasium"
