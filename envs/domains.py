@@ -97,7 +97,6 @@ def traffic() -> dict[str, Any]:
         "env_kwargs": {
             "num_seconds": 500,
             "delta_time": 5,
-            "min_green": 10,
             "max_green": 50,
             "objectives": ["vehicle_delay", "pedestrian_delay"],  # minus the waiting spent in each step (see above)
             "early_change": "defer",  # a change asked before the minimum green is made when it ends
@@ -160,6 +159,7 @@ def traffic() -> dict[str, Any]:
             "route_file",
             "num_seconds",
             "begin_time",
+            "mdp",
             "delta_time",
             "yellow_time",
             "min_green",

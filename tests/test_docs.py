@@ -32,6 +32,8 @@ import os
 import re
 import shlex
 import shutil
+import sys
+import types
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -206,11 +208,13 @@ def in_tmp_dir(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("path", MARKDOWN, ids=[str(p.relative_to(ROOT)) for p in MARKDOWN])
-def test_code_blocks_run(path: Path, in_tmp_dir) -> None:
+def test_code_blocks_run(path: Path, in_tmp_dir, monkeypatch) -> None:
     import torch
 
     torch.set_num_threads(1)
-    namespace: dict = {"__name__": "__docs__"}
+    page = types.ModuleType("__docs__")  # a module, as a user's script is: what it defines pickles by reference
+    monkeypatch.setitem(sys.modules, page.__name__, page)
+    namespace: dict = page.__dict__
     state = CliState()
     with contextlib.redirect_stdout(io.StringIO()):
         for block in code_blocks(path):

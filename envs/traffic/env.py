@@ -44,9 +44,10 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from .hooks import LightView, ObservationFunction, SumoRLObservation, check_picklable
 from .max_pressure import MaxPressure
 from .monitor import IntersectionMonitor, Measurement
-from .objectives import DEFAULT_OBJECTIVES, reward_scales, select_objectives
+from .objectives import DEFAULT_OBJECTIVES, Objective, reward_scales, select_objectives
 from .scenario import NET_FILE, ROUTE_FILE, trim_demand, warn_if_no_demand, write_actuated_programs
 from .signals import SignalController, SignalProgram, is_green
 from .sumo_backend import SumoSimulation
@@ -57,6 +58,21 @@ SIGNAL_CONTROLS = ("agent", "fixed-time", "actuated", "max-pressure")
 
 ACTION_MODES = ("change", "phase")
 """What an action says: keep (0) / change to the next green (1), or the index of the green to show."""
+
+MDP_DEFAULTS: dict[str, dict[str, Any]] = {
+    "paper": {"yellow_time": 3, "min_green": 10, "action_mode": "change", "objectives": DEFAULT_OBJECTIVES},
+    "sumo-rl": {
+        "yellow_time": 2,
+        "min_green": 5,
+        "action_mode": "phase",
+        "objectives": ("vehicle_waiting",),
+        "observation_fn": SumoRLObservation(),
+    },  # fmt: skip
+}
+"""The defaults ``mdp`` selects for the arguments left at None: the paper's, or sumo-rl's (its
+``SumoEnvironment`` defaults: yellow 2 s, minimum green 5 s, phase actions, the waiting-time-decrease reward and
+its observation, :class:`~.hooks.SumoRLObservation`). ``delta_time`` 5 s, ``max_green`` 50 s and ignoring early
+changes are the same in both."""
 
 EARLY_CHANGES = ("ignore", "defer")
 """What a change asked for before the minimum green does: nothing, or it is made when the minimum green is reached."""
@@ -84,6 +100,17 @@ def _check_int(name: str, value: Any, low: int) -> int:
 def _check_choice(name: str, value: Any, choices: Sequence[Any]) -> None:
     if value not in choices:
         raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
+
+
+def _check_observation_fn(observation_fn: Any) -> None:
+    if observation_fn is None:
+        return
+    if not isinstance(observation_fn, ObservationFunction):
+        raise ValueError(
+            "observation_fn must have space(layout, n_greens) -> Box and __call__(view) -> array "
+            f"(see sfgpi_envs.traffic.hooks), got {observation_fn!r}"
+        )
+    check_picklable(observation_fn, "observation_fn")
 
 
 class TrafficSignalEnv(ParallelEnv):
@@ -173,13 +200,15 @@ class TrafficSignalEnv(ParallelEnv):
         *,
         num_seconds: int = 500,
         begin_time: int = 0,
+        mdp: str = "paper",
         delta_time: int = 5,
-        yellow_time: int = 3,
-        min_green: int = 10,
+        yellow_time: int | None = None,
+        min_green: int | None = None,
         max_green: int = 50,
         early_change: str = "ignore",
-        objectives: Sequence[str] = DEFAULT_OBJECTIVES,
-        action_mode: str = "change",
+        objectives: Sequence[str | Objective] | None = None,
+        action_mode: str | None = None,
+        observation_fn: ObservationFunction | None = None,
         signal_control: str = "agent",
         backend: str | None = None,
         gui: bool = False,
@@ -192,6 +221,15 @@ class TrafficSignalEnv(ParallelEnv):
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
+        _check_choice("mdp", mdp, tuple(MDP_DEFAULTS))
+        defaults = MDP_DEFAULTS[mdp]
+        yellow_time = defaults["yellow_time"] if yellow_time is None else yellow_time
+        min_green = defaults["min_green"] if min_green is None else min_green
+        action_mode = defaults["action_mode"] if action_mode is None else action_mode
+        objectives = defaults["objectives"] if objectives is None else objectives
+        self.mdp = mdp
+        self.observation_fn = defaults.get("observation_fn") if observation_fn is None else observation_fn
+        _check_observation_fn(self.observation_fn)
         _check_choice("render_mode", render_mode, (None, "human"))
         _check_choice("signal_control", signal_control, SIGNAL_CONTROLS)
         _check_choice("early_change", early_change, EARLY_CHANGES)
@@ -277,6 +315,8 @@ class TrafficSignalEnv(ParallelEnv):
         n_greens = {a: len(self._programs[a].greens) for a in self.possible_agents}
         self.observation_spaces = {
             a: spaces.Box(0.0, 1.0, shape=(n_greens[a] + 1 + 2 * lay.n_lanes,), dtype=np.float32)
+            if self.observation_fn is None
+            else self.observation_fn.space(lay, n_greens[a])
             for a, lay in self.layouts.items()
         }
         self.action_spaces = {
@@ -409,10 +449,11 @@ class TrafficSignalEnv(ParallelEnv):
                 self._lookups = [self._active_program(a).lookup() for a in self.possible_agents]
             self._counts = [0, 0, 0, 0]
             self._last = [mon.measure() for mon in self._monitors]
+            views = [self._view(i, last, last) for i, last in enumerate(self._last)]
         except self._sim.errors as exc:
             self._died(exc)
         self.agents = list(self.possible_agents)
-        obs = {a: self._observe(i) for i, a in enumerate(self.agents)}
+        obs = {a: self._observe(view) for a, view in zip(self.agents, views, strict=True)}
         infos = {a: self._info(i) for i, a in enumerate(self.agents)}
         return obs, infos
 
@@ -465,10 +506,11 @@ class TrafficSignalEnv(ParallelEnv):
                 self._apply_actions(acts)
             self._simulate(min(self.delta_time, self._end - self._time), self._controllers if drives else ())
             measures = [mon.measure() for mon in self._monitors]
-            obs = {a: self._observe(i) for i, a in enumerate(agents)}
+            views = [self._view(i, prev, cur) for i, (prev, cur) in enumerate(zip(self._last, measures, strict=True))]
+            obs = {a: self._observe(view) for a, view in zip(agents, views, strict=True)}
+            rewards = {a: self._reward(view) for a, view in zip(agents, views, strict=True)}
         except self._sim.errors as exc:
             self._died(exc)
-        rewards = {a: self._reward(prev, cur) for a, prev, cur in zip(agents, self._last, measures, strict=True)}
         self._last = measures
         done = self._time >= self._end
         terminations = dict.fromkeys(agents, False)
@@ -507,8 +549,8 @@ class TrafficSignalEnv(ParallelEnv):
             for k in range(4):
                 counts[k] += counters[k]()
 
-    def _reward(self, prev: Measurement, cur: Measurement) -> np.ndarray:
-        return (np.array([o.reward(prev, cur) for o in self.objectives]) * self.reward_scale).astype(np.float32)
+    def _reward(self, view: LightView) -> np.ndarray:
+        return (np.array([o.reward(view) for o in self.objectives]) * self.reward_scale).astype(np.float32)
 
     def _checked_action(self, agent: str, actions: Mapping[str, Any]) -> int | None:
         """``agent``'s action as an int (``None`` when it has none: it keeps its green)."""
@@ -535,20 +577,24 @@ class TrafficSignalEnv(ParallelEnv):
         ) from exc
 
     # -------------------------------------------------------------------------- observation / info
-    def _observe(self, i: int) -> np.ndarray:
+    def _view(self, i: int, previous: Measurement, current: Measurement) -> LightView:
+        """Light ``i`` now, for the objectives and the observation."""
+        tls = self.possible_agents[i]
         if self._drives:
             ctl = self._controllers[i]
-            green = ctl.green
-            tau = min(1.0, ctl.elapsed_green(self._time) / self.max_green)
+            green, green_time = ctl.green, ctl.elapsed_green(self._time)
         else:
-            tls = self.possible_agents[i]
             tl = self._api.trafficlight
             green, yellow = self._lookups[i].get(tl.getRedYellowGreenState(tls), (0, False))
-            tau = 0.0 if yellow else min(1.0, tl.getSpentDuration(tls) / self.max_green)
+            green_time = 0.0 if yellow else tl.getSpentDuration(tls)
         dens, queue = self._monitors[i].lane_features()
-        vec = [0.0] * len(self._programs[self.possible_agents[i]].greens) + [tau]
-        vec[green] = 1.0
-        return np.array(vec + dens + queue, dtype=np.float32)
+        return LightView(
+            tls, self.layouts[tls], previous, current, green, len(self._programs[tls].greens), green_time,
+            self.min_green, self.max_green, tuple(dens), tuple(queue), self._time, self._api,
+        )  # fmt: skip
+
+    def _observe(self, view: LightView) -> np.ndarray:
+        return view.default_observation() if self.observation_fn is None else self.observation_fn(view)
 
     def _info(self, i: int) -> dict[str, Any]:
         last = self._last[i]

@@ -1,8 +1,9 @@
 """The objectives a traffic light can be rewarded on, one reward component each.
 
 Every component is measured at the light's own intersection from two consecutive
-:class:`~.monitor.Measurement` values (the previous decision and this one), so that a larger reward is
-always better:
+:class:`~.monitor.Measurement` values (the previous decision and this one), handed over in a
+:class:`~.hooks.LightView`, so that a larger reward is always better. A user's own objective is an
+:class:`Objective` with a picklable ``reward(view)``, given in ``objectives=[...]`` beside the menu's names:
 
 ==========================  ==========================================================================  =========
 name                        reward of a decision step                                                   unit
@@ -30,48 +31,66 @@ from typing import Any
 
 import numpy as np
 
-from .monitor import Measurement
+from .hooks import LightView, check_picklable
 
 
 @dataclass(frozen=True)
 class Objective:
-    """One reward component.
+    """One reward component: one of the menu's, or a user's own.
 
-    :param name: the name ``objectives=[...]`` takes.
+    :param name: the name ``objectives=[...]`` takes (distinct among the env's objectives).
     :param label: what it measures, with the unit, for output and axes.
-    :param reward: ``(previous, current) -> reward`` of a decision step.
+    :param reward: ``view -> reward`` of a decision step, from the light's :class:`~.hooks.LightView` (its previous
+        and current :class:`~.monitor.Measurement`, and the SUMO API for anything else); larger is better. It must
+        pickle (a module-level function, or a ``functools.partial`` of one).
     :param needs_pedestrians: only meaningful where the network has signalised crossings.
     """
 
     name: str
     label: str
-    reward: Callable[[Measurement, Measurement], float]
+    reward: Callable[[LightView], float]
     needs_pedestrians: bool = False
+
+
+def vehicle_waiting(light: LightView) -> float:
+    """Decrease of the waiting time of the vehicles on the incoming lanes (paper Eq. 24)."""
+    return light.previous.vehicle_wait - light.current.vehicle_wait
+
+
+def pedestrian_waiting(light: LightView) -> float:
+    """Decrease of the waiting time of the pedestrians on the approach (paper Eq. 25)."""
+    return light.previous.pedestrian_wait - light.current.pedestrian_wait
+
+
+def vehicle_delay(light: LightView) -> float:
+    """Minus the waiting time the vehicles spent at the intersection during the step."""
+    return light.previous.vehicle_wait_episode - light.current.vehicle_wait_episode
+
+
+def pedestrian_delay(light: LightView) -> float:
+    """Minus the waiting time the pedestrians spent on the approach during the step."""
+    return light.previous.pedestrian_wait_episode - light.current.pedestrian_wait_episode
+
+
+def vehicle_queue(light: LightView) -> float:
+    """Minus the halting vehicles on the incoming lanes."""
+    return -float(light.current.halting)
+
+
+def co2(light: LightView) -> float:
+    """Minus the CO2 [g] the vehicles on the incoming lanes emitted during the step."""
+    return (light.previous.co2_mg - light.current.co2_mg) / 1000.0
 
 
 MENU: dict[str, Objective] = {
     o.name: o
     for o in (
-        Objective("vehicle_waiting", "vehicle waiting [s]", lambda p, c: p.vehicle_wait - c.vehicle_wait),
-        Objective(
-            "pedestrian_waiting",
-            "pedestrian waiting [s]",
-            lambda p, c: p.pedestrian_wait - c.pedestrian_wait,
-            needs_pedestrians=True,
-        ),
-        Objective(
-            "vehicle_delay",
-            "vehicle waiting [s]",
-            lambda p, c: p.vehicle_wait_episode - c.vehicle_wait_episode,
-        ),
-        Objective(
-            "pedestrian_delay",
-            "pedestrian waiting [s]",
-            lambda p, c: p.pedestrian_wait_episode - c.pedestrian_wait_episode,
-            needs_pedestrians=True,
-        ),
-        Objective("vehicle_queue", "halting vehicles", lambda p, c: -float(c.halting)),
-        Objective("co2", "CO2 emitted [g]", lambda p, c: (p.co2_mg - c.co2_mg) / 1000.0),
+        Objective("vehicle_waiting", "vehicle waiting [s]", vehicle_waiting),
+        Objective("pedestrian_waiting", "pedestrian waiting [s]", pedestrian_waiting, needs_pedestrians=True),
+        Objective("vehicle_delay", "vehicle waiting [s]", vehicle_delay),
+        Objective("pedestrian_delay", "pedestrian waiting [s]", pedestrian_delay, needs_pedestrians=True),
+        Objective("vehicle_queue", "halting vehicles", vehicle_queue),
+        Objective("co2", "CO2 emitted [g]", co2),
     )
 }
 """The objectives on offer, by name."""
@@ -80,21 +99,38 @@ DEFAULT_OBJECTIVES = ("vehicle_waiting", "pedestrian_waiting")
 """The paper's objectives (Sec. 5.2)."""
 
 
-def select_objectives(names: Any) -> tuple[Objective, ...]:
-    """The objectives named, in order.
+def select_objectives(items: Any) -> tuple[Objective, ...]:
+    """The objectives given, in order.
 
-    :param names: a sequence of at least one distinct name of :data:`MENU`.
+    :param items: a sequence of at least one menu name or :class:`Objective` (a user's own), names distinct.
     :return: the objectives.
-    :raises ValueError: a name not on the menu, a repeated name, or no name at all.
+    :raises ValueError: a name not on the menu, something that is neither, a repeated name, an objective whose
+        reward does not pickle, or nothing at all.
     """
-    if isinstance(names, str) or not isinstance(names, Sequence) or not names:
-        raise ValueError(f"objectives must be a non-empty list of names from {list(MENU)}, got {names!r}")
-    unknown = [n for n in names if n not in MENU]
-    if unknown:
-        raise ValueError(f"unknown objective {unknown[0]!r}; the menu: {', '.join(MENU)}")
+    if isinstance(items, str) or not isinstance(items, Sequence) or not items:
+        raise ValueError(
+            f"objectives must be a non-empty list of names from {list(MENU)} or Objective(...)s, got {items!r}"
+        )
+    objectives = tuple(_objective(item) for item in items)
+    names = [o.name for o in objectives]
     if len(set(names)) != len(names):
-        raise ValueError(f"objectives must be distinct, got {list(names)}")
-    return tuple(MENU[n] for n in names)
+        raise ValueError(f"objectives must have distinct names, got {names}")
+    return objectives
+
+
+def _objective(item: Any) -> Objective:
+    if isinstance(item, Objective):
+        if not callable(item.reward):
+            raise ValueError(f"objective {item.name!r}: reward must be a callable of a LightView, got {item.reward!r}")
+        check_picklable(item.reward, f"the reward of objective {item.name!r}")
+        return item
+    if isinstance(item, str) and item in MENU:
+        return MENU[item]
+    if isinstance(item, str):
+        raise ValueError(f"unknown objective {item!r}; the menu: {', '.join(MENU)}")
+    raise ValueError(
+        f"an objective is a menu name ({', '.join(MENU)}) or an Objective(name, label, reward), got {item!r}"
+    )
 
 
 def reward_scales(scale: Any, names: Sequence[str]) -> np.ndarray:
