@@ -167,6 +167,7 @@ def traffic() -> dict[str, Any]:
             "early_change",
             "objectives",
             "action_mode",
+            "observation_fn",  # only the string "padded" can come from a file: objects are refused by the env
             "signal_control",
             "backend",
             "seed",

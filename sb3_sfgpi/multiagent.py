@@ -163,7 +163,8 @@ class MultiAgentRunner:
                     raise ValueError(
                         f"MA-SFOLS shares policies between agents: all agents need the same spaces, but the "
                         f"{kind.replace('_', ' ')} of {agent!r} is {getattr(env, kind)(agent)} and of {first!r} "
-                        f"{getattr(env, kind)(first)}"
+                        f"{getattr(env, kind)(first)}; pad them into one layout that means the same at every agent "
+                        "(TrafficSignalEnv: observation_fn='padded')"
                     )
         if not isinstance(env.action_space(first), spaces.Discrete):
             raise ValueError(f"SFDQN needs Discrete actions, got {env.action_space(first)}")

@@ -100,7 +100,7 @@ def test_hooks_pickle_for_the_workers_and_unpicklable_ones_are_refused():
         TrafficSignalEnv(objectives=[mean_speed])
     with pytest.raises(ValueError, match="distinct names"):
         TrafficSignalEnv(objectives=["co2", Objective("co2", "mine", mean_speed)])
-    with pytest.raises(ValueError, match="observation_fn must have space"):
+    with pytest.raises(ValueError, match="observation_fn must be None, 'padded', or have space"):
         TrafficSignalEnv(observation_fn=lambda light: light.default_observation())
     with pytest.raises(ValueError, match="mdp must be one of"):
         TrafficSignalEnv(mdp="resco")

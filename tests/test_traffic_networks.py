@@ -150,16 +150,61 @@ def test_sumo_programs_run_on_any_network(program):
     assert metrics["vehicles_departed"] > 50 and metrics["vehicle_waiting_time_mean"] > 0
 
 
-def test_lights_with_different_spaces_are_refused_by_masfols():
-    cologne = NETS / "RESCO" / "cologne3"
-    env = TrafficSignalEnv(
-        str(cologne / "cologne3.net.xml"), str(cologne / "cologne3.rou.xml"), objectives=TWO, begin_time=25200
-    )
+COLOGNE3 = {
+    "net_file": str(NETS / "RESCO" / "cologne3" / "cologne3.net.xml"),
+    "route_file": str(NETS / "RESCO" / "cologne3" / "cologne3.rou.xml"),
+    "objectives": TWO,
+    "begin_time": 25200,
+    "num_seconds": 60,
+}
+
+
+def test_lights_with_different_spaces_are_refused_by_masfols_naming_the_padding():
+    env = TrafficSignalEnv(**COLOGNE3)
     try:
-        with pytest.raises(ValueError, match="same spaces"):
+        with pytest.raises(ValueError, match="same spaces.*observation_fn='padded'"):
             MASFOLS(env, policy="MlpPolicy")
     finally:
         env.close()
+
+
+def _unpadded(padded: np.ndarray, env: TrafficSignalEnv, agent: str) -> np.ndarray:
+    """Eq. 22's observation of ``agent`` read back from the padded layout (and its absent slots checked to be 0)."""
+    layout, fn = env.layouts[agent], env.observation_fn
+    n_greens = int(padded[fn.max_greens : 2 * fn.max_greens].sum())
+    v, p = len(layout.vehicle_lanes), len(layout.pedestrian_edges)
+    g_max, v_max, p_max = fn.max_greens, fn.max_vehicle_lanes, fn.max_pedestrian_edges
+    green, tau = padded[:g_max], padded[2 * g_max]
+    vehicles = padded[2 * g_max + 1 : 2 * g_max + 1 + 3 * v_max].reshape(3, v_max)
+    pedestrians = padded[2 * g_max + 1 + 3 * v_max :].reshape(3, p_max)
+    assert not green[n_greens:].any() and not vehicles[:, v:].any() and not pedestrians[:, p:].any()
+    assert vehicles[2, :v].all() and pedestrians[2, :p].all()  # the "exists" flags of the light's own lanes
+    densities = np.concatenate([vehicles[0, :v], pedestrians[0, :p]])
+    queues = np.concatenate([vehicles[1, :v], pedestrians[1, :p]])
+    return np.concatenate([green[:n_greens], [tau], densities, queues]).astype(np.float32)
+
+
+def test_padded_observations_give_lights_that_differ_one_layout_and_masfols_trains():
+    plain = TrafficSignalEnv(**COLOGNE3, backend="traci")  # libsumo runs one simulation per process
+    padded = TrafficSignalEnv(**COLOGNE3, observation_fn="padded")
+    assert len({plain.observation_space(a).shape for a in plain.possible_agents}) > 1  # the lights differ
+    first = padded.observation_space(padded.possible_agents[0])
+    assert all(padded.observation_space(a) == first for a in padded.possible_agents)
+    (obs_plain, _), (obs_padded, _) = plain.reset(seed=0), padded.reset(seed=0)
+    for step in range(12):
+        for agent in plain.possible_agents:
+            np.testing.assert_array_equal(_unpadded(obs_padded[agent], padded, agent), obs_plain[agent])
+        actions = {a: step % 2 for a in plain.possible_agents}
+        obs_plain, obs_padded = plain.step(actions)[0], padded.step(actions)[0]
+    plain.close()
+    learner = {"learning_starts": 10, "batch_size": 8, "buffer_size": 1000, "policy_kwargs": {"net_arch": [16]}}
+    masfols = MASFOLS(padded, policy="MlpPolicy", steps_per_iteration=30, learner_kwargs=learner, seed=0)
+    try:
+        masfols.learn(max_iterations=1)
+        for agent, observation in padded.reset(seed=1)[0].items():
+            assert masfols.policy_set.predict(observation, [0.5, 0.5])[0] in (0, 1), agent
+    finally:
+        masfols.close()
 
 
 def test_masfols_trains_on_the_grid_through_the_cli(tmp_path, capsys):

@@ -44,7 +44,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .hooks import LightView, ObservationFunction, SumoRLObservation, check_picklable
+from .hooks import LightView, ObservationFunction, PaddedObservation, SumoRLObservation, check_picklable
 from .max_pressure import MaxPressure
 from .monitor import IntersectionMonitor, Measurement
 from .objectives import DEFAULT_OBJECTIVES, Objective, reward_scales, select_objectives
@@ -102,15 +102,19 @@ def _check_choice(name: str, value: Any, choices: Sequence[Any]) -> None:
         raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
 
 
-def _check_observation_fn(observation_fn: Any) -> None:
-    if observation_fn is None:
-        return
-    if not isinstance(observation_fn, ObservationFunction):
+def _observation_fn(given: Any, lights: Sequence[tuple[IntersectionLayout, int]]) -> ObservationFunction | None:
+    """What ``observation_fn`` names: None (Eq. 22), ``"padded"`` for these lights, or the user's own."""
+    if given is None:
+        return None
+    if given == "padded":
+        return PaddedObservation.covering(lights)
+    if isinstance(given, str) or not isinstance(given, ObservationFunction):
         raise ValueError(
-            "observation_fn must have space(layout, n_greens) -> Box and __call__(view) -> array "
-            f"(see sfgpi_envs.traffic.hooks), got {observation_fn!r}"
+            "observation_fn must be None, 'padded', or have space(layout, n_greens) -> Box and __call__(view) -> "
+            f"array (see sfgpi_envs.traffic.hooks), got {given!r}"
         )
-    check_picklable(observation_fn, "observation_fn")
+    check_picklable(given, "observation_fn")
+    return given
 
 
 class TrafficSignalEnv(ParallelEnv):
@@ -154,16 +158,23 @@ class TrafficSignalEnv(ParallelEnv):
     :param num_seconds: episode length [s].
     :param begin_time: simulation time the episode starts at [s] (networks whose demand starts later, as
         RESCO's, need it).
+    :param mdp: whose defaults the arguments left at None take (:data:`MDP_DEFAULTS`): ``"paper"`` or
+        ``"sumo-rl"`` (sumo-rl's ``SumoEnvironment``: yellow 2 s, minimum green 5 s, phase actions, its reward and
+        observation).
     :param delta_time: simulated seconds between two decisions.
-    :param yellow_time: duration of the yellow phase between two greens [s].
-    :param min_green: minimum green time [s].
+    :param yellow_time: duration of the yellow phase between two greens [s] (None: the ``mdp``'s).
+    :param min_green: minimum green time [s] (None: the ``mdp``'s).
     :param max_green: maximum green time [s] (also the normaliser of ``tau``).
     :param early_change: what a change asked for before ``min_green`` seconds of green does: ``"ignore"``
         (nothing) or ``"defer"`` (it is made at ``min_green``, so that a green can last exactly ``min_green`` on a
         decision grid that does not fall on it).
-    :param objectives: names from :data:`~.objectives.MENU`, one reward component each, in order
-        (``"pedestrian_waiting"`` needs a network with signalised crossings).
-    :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green).
+    :param objectives: names from :data:`~.objectives.MENU` or users' :class:`~.objectives.Objective` objects, one
+        reward component each, in order (``"pedestrian_waiting"`` needs a network with signalised crossings); None:
+        the ``mdp``'s.
+    :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green); None: the ``mdp``'s.
+    :param observation_fn: None (Eq. 22 above), ``"padded"`` (one layout for lights that differ, every slot meaning
+        the same at every light: :class:`~.hooks.PaddedObservation`), or a user's picklable object with
+        ``space(layout, n_greens)`` and ``__call__(view)`` (:class:`~.hooks.ObservationFunction`).
     :param signal_control: ``"agent"`` (actions drive the lights), ``"fixed-time"`` (SUMO's static
         program in the network), ``"actuated"`` (SUMO's gap-based actuated program: the static
         program's phases, greens between ``min_green`` and ``max_green``, or ``actuated_file``) or
@@ -208,7 +219,7 @@ class TrafficSignalEnv(ParallelEnv):
         early_change: str = "ignore",
         objectives: Sequence[str | Objective] | None = None,
         action_mode: str | None = None,
-        observation_fn: ObservationFunction | None = None,
+        observation_fn: ObservationFunction | str | None = None,
         signal_control: str = "agent",
         backend: str | None = None,
         gui: bool = False,
@@ -228,8 +239,7 @@ class TrafficSignalEnv(ParallelEnv):
         action_mode = defaults["action_mode"] if action_mode is None else action_mode
         objectives = defaults["objectives"] if objectives is None else objectives
         self.mdp = mdp
-        self.observation_fn = defaults.get("observation_fn") if observation_fn is None else observation_fn
-        _check_observation_fn(self.observation_fn)
+        self._observation_fn = defaults.get("observation_fn") if observation_fn is None else observation_fn
         _check_choice("render_mode", render_mode, (None, "human"))
         _check_choice("signal_control", signal_control, SIGNAL_CONTROLS)
         _check_choice("early_change", early_change, EARLY_CHANGES)
@@ -313,6 +323,7 @@ class TrafficSignalEnv(ParallelEnv):
         self.possible_agents: list[str] = list(self.layouts)
         self.agents: list[str] = []
         n_greens = {a: len(self._programs[a].greens) for a in self.possible_agents}
+        self.observation_fn = _observation_fn(self._observation_fn, [(self.layouts[a], n_greens[a]) for a in n_greens])
         self.observation_spaces = {
             a: spaces.Box(0.0, 1.0, shape=(n_greens[a] + 1 + 2 * lay.n_lanes,), dtype=np.float32)
             if self.observation_fn is None

@@ -6,12 +6,14 @@ shown and its age, the lane features of the built-in observation, and the SUMO A
 objective is an :class:`~.objectives.Objective` whose ``reward`` maps a view to a float; a user's observation
 function is an object with ``space(layout, n_greens)`` and ``__call__(view)`` (:class:`ObservationFunction`), as
 sumo-rl's ``observation_class``. Both must pickle (a module-level function or class, a ``functools.partial`` of
-one): the evaluation workers and the env's copies are built in other processes.
+one): the evaluation workers and the env's copies are built in other processes. :class:`PaddedObservation` gives
+lights that differ one layout, so that they share one policy set.
 """
 
 from __future__ import annotations
 
 import pickle
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -106,3 +108,64 @@ def check_picklable(value: Any, what: str) -> None:
             f"{what} must be picklable (a module-level function or class, or a functools.partial of one), "
             f"for the evaluation workers and the env's copies: {error}"
         ) from None
+
+
+@dataclass(frozen=True)
+class PaddedObservation:
+    """One observation layout for lights that differ, each slot meaning the same thing at every light.
+
+    Lights with different numbers of greens or lanes share one policy set only if an input means the same at all of
+    them, so each feature group is padded to the largest light's size on its own (not zeros appended at the end)::
+
+        [green one-hot (G), green exists (G), tau,
+         vehicle density (V), vehicle queue (V), vehicle lane exists (V),
+         pedestrian density (P), pedestrian queue (P), pedestrian edge exists (P)]
+
+    ``G``, ``V``, ``P``: the most greens, controlled vehicle lanes and pedestrian approach edges of any light;
+    absent slots are 0 and their "exists" flag says so. ``TrafficSignalEnv(observation_fn="padded")`` builds it for
+    the network's lights (:meth:`covering`).
+
+    :param max_greens: ``G``
+    :param max_vehicle_lanes: ``V``
+    :param max_pedestrian_edges: ``P``
+    """
+
+    max_greens: int
+    max_vehicle_lanes: int
+    max_pedestrian_edges: int
+
+    @classmethod
+    def covering(cls, lights: Sequence[tuple[IntersectionLayout, int]]) -> PaddedObservation:
+        """The layout of the largest of ``lights``, given as ``(layout, number of greens)`` pairs."""
+        return cls(
+            max(n for _, n in lights),
+            max(len(layout.vehicle_lanes) for layout, _ in lights),
+            max(len(layout.pedestrian_edges) for layout, _ in lights),
+        )
+
+    def space(self, layout: IntersectionLayout, n_greens: int) -> spaces.Box:
+        """The one space of every light; a light larger than the layout is refused (:class:`ValueError`)."""
+        sizes = (n_greens, len(layout.vehicle_lanes), len(layout.pedestrian_edges))
+        limits = (self.max_greens, self.max_vehicle_lanes, self.max_pedestrian_edges)
+        if any(size > limit for size, limit in zip(sizes, limits, strict=True)):
+            raise ValueError(f"light {layout.tls_id} (greens, vehicle lanes, pedestrian edges) {sizes} exceeds {self}")
+        size = 2 * self.max_greens + 1 + 3 * self.max_vehicle_lanes + 3 * self.max_pedestrian_edges
+        return spaces.Box(0.0, 1.0, shape=(size,), dtype=np.float32)
+
+    def __call__(self, light: LightView) -> np.ndarray:
+        n_vehicle = len(light.layout.vehicle_lanes)
+        green = _padded([1.0 if g == light.green else 0.0 for g in range(light.n_greens)], self.max_greens)
+        tau = [min(1.0, light.green_time / light.max_green)]
+        vehicles = _group(light.densities[:n_vehicle], light.queues[:n_vehicle], self.max_vehicle_lanes)
+        pedestrians = _group(light.densities[n_vehicle:], light.queues[n_vehicle:], self.max_pedestrian_edges)
+        exists = _padded([1.0] * light.n_greens, self.max_greens)
+        return np.array(green + exists + tau + vehicles + pedestrians, dtype=np.float32)
+
+
+def _padded(values: Sequence[float], size: int) -> list[float]:
+    return list(values) + [0.0] * (size - len(values))
+
+
+def _group(densities: Sequence[float], queues: Sequence[float], size: int) -> list[float]:
+    """A lane group's densities, queues and "exists" flags, each padded to ``size``."""
+    return _padded(densities, size) + _padded(queues, size) + _padded([1.0] * len(densities), size)
