@@ -248,22 +248,36 @@ class GPIPolicy:
                 kept.append(i)
         return self.subset(kept)
 
-    def joint_policy(self, w: np.ndarray | Sequence[float], agents: Sequence[str] | None = None) -> JointPolicy:
+    def joint_policy(
+        self,
+        w: np.ndarray | Sequence[float],
+        agents: Sequence[str] | None = None,
+        followed: set[frozenset[int]] | None = None,
+    ) -> JointPolicy:
         """
         The joint policy of agents acting by GPI for the preference ``w``.
 
         :param w: preference weights
         :param agents: None: every agent acts by GPI over the whole set (one batched call per step); the agents'
             names: each of them acts by GPI over the policies it learned itself (:meth:`agent_policies`)
-        :raises ValueError: bad weights; an agent without policies in the set
+        :param followed: where given (``agents`` None), every decision of every agent adds to it the members that
+            attain GPI's value of the action taken (:meth:`predict_followed`); the actions are the same
+        :raises ValueError: bad weights; an agent without policies in the set; ``followed`` with ``agents``
         """
         self._validated_weights(w)
+        if followed is not None and agents is not None:
+            raise ValueError("followed members are recorded where every agent acts by GPI over the whole set")
         own = None if agents is None else {agent: self.agent_policies(agent) for agent in agents}
 
         def act(observations: dict[str, Any]) -> dict[str, int]:
             names = list(observations)
             if own is None:
-                actions, _ = self.predict(np.stack([observations[a] for a in names]), w)
+                batch = np.stack([observations[a] for a in names])
+                if followed is None:
+                    actions, _ = self.predict(batch, w)
+                else:
+                    actions, members = self.predict_followed(batch, w)
+                    followed.update(members)
                 return dict(zip(names, actions.tolist(), strict=True))
             return {a: int(own[a].predict(observations[a], w)[0]) for a in names}
 
@@ -348,6 +362,39 @@ class GPIPolicy:
         obs_tensor = th.as_tensor(obs, device=self.device)
         with th.no_grad():
             return th.amax(weighted_sum(stacked.psi(obs_tensor), weights[1]), dim=0).cpu().numpy()
+
+    def _policy_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
+        """Every policy's action values ``w · ψ^π(s, a)``, shape ``(n_policies, batch, n_actions)``."""
+        stacked = self._stack()
+        if isinstance(stacked, StackedTables) and self.device.type == "cpu":
+            return stacked.policy_q_numpy(obs, weights[2]).transpose(1, 0, 2)
+        obs_tensor = th.as_tensor(obs, device=self.device)
+        with th.no_grad():
+            return weighted_sum(stacked.psi(obs_tensor), weights[1]).cpu().numpy()
+
+    def predict_followed(
+        self, observation: np.ndarray, w: np.ndarray | list[float]
+    ) -> tuple[np.ndarray, list[frozenset[int]]]:
+        """
+        GPI actions of a batch, the same as :meth:`predict`'s, and for each observation the members GPI followed: those
+        that attain GPI's value of the action taken, ``max_π w · ψ^π(s, a*)``.
+
+        Without a member, GPI takes the same action wherever another member attains that value too: the action's value
+        is unchanged, no other action's grew, and ties still go to the first action. Each policy's values are computed
+        on their own (:func:`~sb3_sfgpi.common.weights.weighted_sum`), whatever the other members.
+
+        :param observation: a batch of observations
+        :param w: preference weights of length ``d``
+        :return: the actions, shape ``(batch,)``, and the members followed, one set of indices per observation
+        """
+        weights = self._validated_weights(w)
+        obs, _ = self._obs_to_array(observation)
+        q = self._policy_q(obs, weights)
+        best = q.max(axis=0)
+        actions = best.argmax(axis=1)
+        rows = np.arange(len(actions))
+        attaining = q[:, rows, actions] == best[rows, actions]  # (n_policies, batch)
+        return actions, [frozenset(np.flatnonzero(column).tolist()) for column in attaining.T]
 
     def predict(
         self,

@@ -55,10 +55,14 @@ class StackedTables:
 
     def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """GPI action values of a batch, in numpy (CPU sets): cheaper than torch for a few small operations."""
+        return self.policy_q_numpy(obs, weights).max(axis=1)
+
+    def policy_q_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Every policy's action values ``w · ψ^π(s, a)`` of a batch, shape ``(batch, P, A)`` (CPU sets)."""
         assert self.tables_numpy is not None
         index = self.rows(obs)  # raises ValueError for an observation outside the space
         rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
-        return weighted_sum(rows, weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
+        return weighted_sum(rows, weights).reshape(-1, self.n_policies, self.n_actions)
 
 
 class StackedMLP:
