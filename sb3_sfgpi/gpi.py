@@ -46,7 +46,7 @@ from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_sp
 from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
-from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap, stack_networks
+from sb3_sfgpi.stacking import Stacked, StackedVmap, WithoutOne, numpy_tables, stack_networks
 
 __all__ = ["MANIFEST", "CorruptPolicySetError", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
 
@@ -66,7 +66,7 @@ class GPIPolicy:
         self._device: th.device | None = None
         self.networks: list[nn.Module] = []
         self.infos: list[PolicyInfo] = []
-        self._stacked: StackedTables | StackedMLP | StackedVmap | None = None
+        self._stacked: Stacked | None = None
         self._weights_cache: tuple[Any, tuple[np.ndarray, th.Tensor, np.ndarray]] | None = None
         for model in models:
             self.add(model)
@@ -196,6 +196,20 @@ class GPIPolicy:
             subset.add(self.networks[i], info.weights, info.value, info.agent, info.iteration, info.retired)
         return subset
 
+    def without(self, member: int) -> GPIPolicy:
+        """
+        A view of the set without the policy at ``member``: it shares this set's networks and batched copy (nothing
+        is copied, nothing is stacked again), so it acts as :meth:`subset` would, for as long as this set is unchanged.
+        For scoring leave-one-out sets (:class:`~sb3_sfgpi.validation.ValidationScorer`).
+        """
+        if not 0 <= member < len(self):
+            raise IndexError(f"no policy {member} in a set of {len(self)}")
+        view = GPIPolicy(device=self.device)
+        view.networks = [net for i, net in enumerate(self.networks) if i != member]
+        view.infos = [info for i, info in enumerate(self.infos) if i != member]
+        view._device, view._stacked = self.device, WithoutOne(self._stack(), member)
+        return view
+
     def members(self) -> GPIPolicy:
         """The policies not retired (see :meth:`retire`), in their order: Π, as GPI acts over it."""
         return self.subset(i for i, info in enumerate(self.infos) if info.retired is None)
@@ -283,7 +297,7 @@ class GPIPolicy:
 
         return act
 
-    def _stack(self) -> StackedTables | StackedMLP | StackedVmap:
+    def _stack(self) -> Stacked:
         if self._stacked is None:
             self._stacked = stack_networks(self.networks)
         return self._stacked
@@ -357,7 +371,7 @@ class GPIPolicy:
 
     def _gpi_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
         stacked = self._stack()
-        if isinstance(stacked, StackedTables) and self.device.type == "cpu":
+        if numpy_tables(stacked) and self.device.type == "cpu":
             return stacked.q_values_numpy(obs, weights[2])
         obs_tensor = th.as_tensor(obs, device=self.device)
         with th.no_grad():
@@ -366,7 +380,7 @@ class GPIPolicy:
     def _policy_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
         """Every policy's action values ``w · ψ^π(s, a)``, shape ``(n_policies, batch, n_actions)``."""
         stacked = self._stack()
-        if isinstance(stacked, StackedTables) and self.device.type == "cpu":
+        if numpy_tables(stacked) and self.device.type == "cpu":
             return stacked.policy_q_numpy(obs, weights[2]).transpose(1, 0, 2)
         obs_tensor = th.as_tensor(obs, device=self.device)
         with th.no_grad():

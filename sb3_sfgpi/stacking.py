@@ -132,6 +132,37 @@ class StackedVmap:
         return th.vmap(one, in_dims=(0, 0, None))(self.params, self.buffers, obs_tensor)
 
 
+class WithoutOne:
+    """
+    A stacked set without one of its policies: the others' ``ψ`` (or action values) from the whole set's stack, in
+    their order, nothing copied. Each policy's values are those of the whole set's pass.
+    """
+
+    def __init__(self, stacked: StackedTables | StackedMLP | StackedVmap | WithoutOne, member: int):
+        self.stacked, self.member = stacked, member
+        self.tabular: bool = isinstance(stacked, StackedTables) or (isinstance(stacked, WithoutOne) and stacked.tabular)
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        psi = self.stacked.psi(obs_tensor)
+        return th.cat([psi[: self.member], psi[self.member + 1 :]])
+
+    def policy_q_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """The others' action values, shape ``(batch, P - 1, A)`` (CPU tables)."""
+        return np.delete(self.stacked.policy_q_numpy(obs, weights), self.member, axis=1)  # type: ignore[union-attr]
+
+    def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        return self.policy_q_numpy(obs, weights).max(axis=1)
+
+
+#: A set's networks evaluated in one batched pass.
+Stacked = StackedTables | StackedMLP | StackedVmap | WithoutOne
+
+
+def numpy_tables(stacked: Stacked) -> bool:
+    """Whether the stack holds tables, whose action values numpy computes (on the CPU)."""
+    return isinstance(stacked, StackedTables) or (isinstance(stacked, WithoutOne) and stacked.tabular)
+
+
 def stack_networks(networks: list[nn.Module]) -> StackedTables | StackedMLP | StackedVmap:
     """The fastest batched evaluator that fits the networks (all of one architecture)."""
     first = networks[0]

@@ -89,7 +89,7 @@ class ValidationScorer:
         returns, followed = list(scored.returns), [_without(sets, member) for sets in scored.followed]
         if not again:
             return Scored(scored.score, scored.returns, tuple(followed))
-        rest = policy_set.subset(j for j in range(len(policy_set)) if j != member)
+        rest = policy_set.without(member)
         for i in again:
             returns[i], followed[i] = self._episodes(rest, i)
         return self._scored(returns, followed)
