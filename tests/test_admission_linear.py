@@ -97,6 +97,17 @@ def test_a_view_without_a_member_acts_as_the_subset(tables, states, w0):
             np.testing.assert_array_equal(rest.predict(obs, w)[0], actions)
 
 
+def test_a_view_of_mlp_networks_without_a_member_gives_the_subsets_values(make_random_mlp):
+    policy_set = GPIPolicy()
+    for seed in range(5):
+        policy_set.add(make_random_mlp(seed), weights=[1.0, 1.0, 1.0])
+    obs = np.random.default_rng(0).random((32, 4)).astype(np.float32)
+    w = np.array([0.2, 0.3, 0.5])
+    for member in range(len(policy_set)):
+        rest = policy_set.subset(j for j in range(len(policy_set)) if j != member)
+        np.testing.assert_array_equal(policy_set.without(member).q_values(obs, w), rest.q_values(obs, w))
+
+
 def test_followed_members_are_recorded_only_where_every_agent_acts_over_the_whole_set():
     policy_set = GPIPolicy()
     policy_set.add(
