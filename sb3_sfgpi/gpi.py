@@ -200,7 +200,10 @@ class GPIPolicy:
         """
         A view of the set without the policy at ``member``: it shares this set's networks and batched copy (nothing
         is copied, nothing is stacked again), so it acts as :meth:`subset` would, for as long as this set is unchanged.
-        For scoring leave-one-out sets (:class:`~sb3_sfgpi.validation.ValidationScorer`).
+        For scoring leave-one-out sets (:class:`~sb3_sfgpi.validation.ValidationScorer`); to keep or change, use
+        :meth:`subset`.
+
+        :raises IndexError: no policy at ``member``
         """
         if not 0 <= member < len(self):
             raise IndexError(f"no policy {member} in a set of {len(self)}")
@@ -387,7 +390,7 @@ class GPIPolicy:
             return weighted_sum(stacked.psi(obs_tensor), weights[1]).cpu().numpy()
 
     def predict_followed(
-        self, observation: np.ndarray, w: np.ndarray | list[float]
+        self, observation: np.ndarray, w: np.ndarray | Sequence[float]
     ) -> tuple[np.ndarray, list[frozenset[int]]]:
         """
         GPI actions of a batch, the same as :meth:`predict`'s, and for each observation the members GPI followed: those

@@ -12,6 +12,7 @@ decision; see ``benchmarks/bench_gpi.py``).
 from __future__ import annotations
 
 import copy
+from typing import TypeGuard
 
 import numpy as np
 import torch as th
@@ -138,7 +139,7 @@ class WithoutOne:
     their order, nothing copied. Each policy's values are those of the whole set's pass.
     """
 
-    def __init__(self, stacked: StackedTables | StackedMLP | StackedVmap | WithoutOne, member: int):
+    def __init__(self, stacked: Stacked, member: int):
         self.stacked, self.member = stacked, member
         self.tabular: bool = isinstance(stacked, StackedTables) or (isinstance(stacked, WithoutOne) and stacked.tabular)
 
@@ -158,7 +159,7 @@ class WithoutOne:
 Stacked = StackedTables | StackedMLP | StackedVmap | WithoutOne
 
 
-def numpy_tables(stacked: Stacked) -> bool:
+def numpy_tables(stacked: Stacked) -> TypeGuard[StackedTables | WithoutOne]:
     """Whether the stack holds tables, whose action values numpy computes (on the CPU)."""
     return isinstance(stacked, StackedTables) or (isinstance(stacked, WithoutOne) and stacked.tabular)
 

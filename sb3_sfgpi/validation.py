@@ -12,18 +12,15 @@ leave-one-out subset of Π). The per-policy values must not depend on the other 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy
+from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.evaluation import summarize_test_episodes
+from sb3_sfgpi.evaluation import Rollout, summarize_test_episodes
 from sb3_sfgpi.gpi import GPIPolicy
-
-#: Runs a joint policy for some episodes from a seed (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.rollout`).
-Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
 
 
 @dataclass(frozen=True)
@@ -42,8 +39,11 @@ class Scored:
     followed: tuple[frozenset[frozenset[int]], ...]
 
     def decisive(self, member: int) -> list[int]:
-        """The weights at which GPI without ``member`` may act otherwise: it alone attained a value GPI acted on."""
-        alone, empty = frozenset({member}), frozenset()
+        """
+        The weights at which GPI without ``member`` may act otherwise: it alone attained a value GPI acted on (or no
+        member did: a value that is not a number, where every member counts as decisive).
+        """
+        alone, empty = frozenset({member}), frozenset[int]()
         return [i for i, sets in enumerate(self.followed) if alone in sets or empty in sets]
 
     def decisive_members(self) -> set[int]:
