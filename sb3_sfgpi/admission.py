@@ -111,7 +111,7 @@ class Admission:
         before = 0.0 if kept is None else kept.score
         for c in group:
             policy_set.add(c.learner, value=c.value, agent=c.agent, iteration=iteration)
-        self._cached = None
+        self._cached = None if kept is None else self._started().replayed(policy_set, kept)
         if validate and (after := self._current(policy_set)) < before:
             for _ in group:
                 policy_set.pop()

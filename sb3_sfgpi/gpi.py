@@ -269,7 +269,7 @@ class GPIPolicy:
         self,
         w: np.ndarray | Sequence[float],
         agents: Sequence[str] | None = None,
-        followed: set[frozenset[int]] | None = None,
+        trace: list[tuple[np.ndarray, np.ndarray, list[frozenset[int]]]] | None = None,
     ) -> JointPolicy:
         """
         The joint policy of agents acting by GPI for the preference ``w``.
@@ -277,24 +277,24 @@ class GPIPolicy:
         :param w: preference weights
         :param agents: None: every agent acts by GPI over the whole set (one batched call per step); the agents'
             names: each of them acts by GPI over the policies it learned itself (:meth:`agent_policies`)
-        :param followed: where given (``agents`` None), every decision of every agent adds to it the members that
-            attain GPI's value of the action taken (:meth:`predict_followed`); the actions are the same
-        :raises ValueError: bad weights; an agent without policies in the set; ``followed`` with ``agents``
+        :param trace: where given (``agents`` None), every decision appends to it the agents' observations, their
+            actions and the members GPI followed for each (:meth:`predict_followed`); the actions are the same
+        :raises ValueError: bad weights; an agent without policies in the set; ``trace`` with ``agents``
         """
         self._validated_weights(w)
-        if followed is not None and agents is not None:
-            raise ValueError("followed members are recorded where every agent acts by GPI over the whole set")
+        if trace is not None and agents is not None:
+            raise ValueError("decisions are traced where every agent acts by GPI over the whole set")
         own = None if agents is None else {agent: self.agent_policies(agent) for agent in agents}
 
         def act(observations: dict[str, Any]) -> dict[str, int]:
             names = list(observations)
             if own is None:
                 batch = np.stack([observations[a] for a in names])
-                if followed is None:
+                if trace is None:
                     actions, _ = self.predict(batch, w)
                 else:
                     actions, members = self.predict_followed(batch, w)
-                    followed.update(members)
+                    trace.append((batch, actions, members))
                 return dict(zip(names, actions.tolist(), strict=True))
             return {a: int(own[a].predict(observations[a], w)[0]) for a in names}
 

@@ -21,6 +21,10 @@ from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.evaluation import Rollout, summarize_test_episodes
 from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
+
+#: One weight's episodes: the returns, the members followed, and the decisions (observations, actions).
+Run = tuple[EpisodeReturns, frozenset[frozenset[int]], tuple[np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -32,11 +36,14 @@ class Scored:
     :param returns: per weight, every agent's returns
     :param followed: per weight, the sets of members that attained GPI's value of an action taken (every agent,
         every decision, every episode), as indices into the set
+    :param decisions: per weight, the observations GPI acted on (every agent, decision and episode, in order) and
+        its actions
     """
 
     score: float
     returns: tuple[EpisodeReturns, ...]
     followed: tuple[frozenset[frozenset[int]], ...]
+    decisions: tuple[tuple[np.ndarray, np.ndarray], ...]
 
     def decisive(self, member: int) -> list[int]:
         """
@@ -77,8 +84,27 @@ class ValidationScorer:
 
     def __call__(self, policy_set: GPIPolicy) -> Scored:
         """GPI's episodes over ``policy_set`` at every weight."""
-        runs = [self._episodes(policy_set, i) for i in range(len(self.weights))]
-        return self._scored([r for r, _ in runs], [f for _, f in runs])
+        return self._scored([self._episodes(policy_set, i) for i in range(len(self.weights))])
+
+    def replayed(self, policy_set: GPIPolicy, scored: Scored) -> Scored:
+        """
+        What ``policy_set`` scores, from another set's episodes ``scored`` (e.g. Π's, for Π and new policies): at each
+        weight GPI over ``policy_set`` acts on the decisions' observations in one batch; where it takes the same
+        actions, its episodes are those ones; elsewhere they are rolled out. Tables only (their values of a batch
+        are those of each observation alone); other sets are rolled out at every weight.
+        """
+        if not isinstance(policy_set.networks[0], TabularSFNetwork):
+            return self(policy_set)
+        runs = []
+        for i, (returns, (observations, actions)) in enumerate(zip(scored.returns, scored.decisions, strict=True)):
+            again, members = (
+                policy_set.predict_followed(observations, self.weights[i]) if len(actions) else (actions, [])
+            )
+            same = np.array_equal(again, actions)
+            runs.append(
+                (returns, frozenset(members), (observations, actions)) if same else self._episodes(policy_set, i)
+            )
+        return self._scored(runs)
 
     def without(self, policy_set: GPIPolicy, scored: Scored, member: int) -> Scored:
         """
@@ -86,21 +112,27 @@ class ValidationScorer:
         at which the member was decisive (:meth:`Scored.decisive`) are rolled out again.
         """
         again = scored.decisive(member)
-        returns, followed = list(scored.returns), [_without(sets, member) for sets in scored.followed]
+        followed = tuple(_without(sets, member) for sets in scored.followed)
+        runs = list(zip(scored.returns, followed, scored.decisions, strict=True))
         if not again:
-            return Scored(scored.score, scored.returns, tuple(followed))
+            return Scored(scored.score, scored.returns, followed, scored.decisions)
         rest = policy_set.without(member)
         for i in again:
-            returns[i], followed[i] = self._episodes(rest, i)
-        return self._scored(returns, followed)
+            runs[i] = self._episodes(rest, i)
+        return self._scored(runs)
 
-    def _episodes(self, policy_set: GPIPolicy, i: int) -> tuple[EpisodeReturns, frozenset[frozenset[int]]]:
-        followed: set[frozenset[int]] = set()
+    def _episodes(self, policy_set: GPIPolicy, i: int) -> Run:
+        trace: list[tuple[np.ndarray, np.ndarray, list[frozenset[int]]]] = []
         self.rollouts += 1
-        policy = policy_set.joint_policy(self.weights[i], followed=followed)
+        policy = policy_set.joint_policy(self.weights[i], trace=trace)
         returns = self.rollout(policy, self.episodes, self.seeds[i])
-        return returns, frozenset(followed)
+        if not trace:  # no decision (episodes that end at reset)
+            return returns, frozenset(), (np.empty((0,)), np.empty((0,), dtype=np.int64))
+        observations = np.concatenate([batch for batch, _, _ in trace])
+        actions = np.concatenate([acted for _, acted, _ in trace])
+        return returns, frozenset(m for _, _, members in trace for m in members), (observations, actions)
 
-    def _scored(self, returns: Sequence[EpisodeReturns], followed: Sequence[frozenset[frozenset[int]]]) -> Scored:
+    def _scored(self, runs: Sequence[Run]) -> Scored:
+        returns = tuple(r for r, _, _ in runs)
         score = summarize_test_episodes(self.weights, returns)[0]["mean_return"]
-        return Scored(score, tuple(returns), tuple(followed))
+        return Scored(score, returns, tuple(f for _, f, _ in runs), tuple(d for _, _, d in runs))

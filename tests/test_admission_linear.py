@@ -54,8 +54,11 @@ def same_returns(a: Scored, b: Scored) -> bool:
 
 
 def same(a: Scored, b: Scored) -> bool:
-    """The same score, returns and followed members, to the last bit."""
-    return same_returns(a, b) and a.followed == b.followed
+    """The same score, returns, followed members and decisions, to the last bit."""
+    decisions = all(
+        np.array_equal(x[0], y[0]) and np.array_equal(x[1], y[1]) for x, y in zip(a.decisions, b.decisions, strict=True)
+    )
+    return same_returns(a, b) and a.followed == b.followed and decisions
 
 
 #: small integers: many exact ties between policies and between actions
@@ -76,6 +79,19 @@ def test_leave_one_out_scores_are_those_of_full_rollouts(tables):
         assert same(scorer.without(policy_set, scored, member), full)
         if member not in scored.decisive_members():  # never decisive: GPI without it acts the same everywhere
             assert same_returns(full, scored)
+
+
+@settings(max_examples=40, deadline=None)
+@given(TABLES, st.integers(1, 3))
+def test_scores_replayed_from_another_sets_decisions_are_those_of_full_rollouts(tables, added):
+    scorer = chain_scorer()
+    again = chain_set(tables + tables[:added])  # the same tables again: ties that change nothing
+    new = chain_set(tables + [t[::-1].copy() for t in tables[:added]])  # other ones: they may change actions
+    for policy_set in (again, new):
+        for prefix in range(1, len(policy_set)):
+            scored = scorer(policy_set.subset(range(prefix)))
+            assert same(scorer.replayed(policy_set, scored), scorer(policy_set))
+            assert same(scorer.replayed(policy_set.subset(range(prefix)), scored), scored)
 
 
 @settings(max_examples=40, deadline=None)
@@ -108,13 +124,13 @@ def test_a_view_of_mlp_networks_without_a_member_gives_the_subsets_values(make_r
         np.testing.assert_array_equal(policy_set.without(member).q_values(obs, w), rest.q_values(obs, w))
 
 
-def test_followed_members_are_recorded_only_where_every_agent_acts_over_the_whole_set():
+def test_decisions_are_traced_only_where_every_agent_acts_over_the_whole_set():
     policy_set = GPIPolicy()
     policy_set.add(
         TabularSFNetwork(spaces.Discrete(N_STATES), spaces.Discrete(N_ACTIONS), REWARD_DIM), [1, 0], agent="agent_0"
     )
     with pytest.raises(ValueError, match="whole set"):
-        policy_set.joint_policy([0.5, 0.5], ["agent_0"], followed=set())
+        policy_set.joint_policy([0.5, 0.5], ["agent_0"], trace=[])
     with pytest.raises(IndexError):
         policy_set.without(1)
 
