@@ -105,7 +105,10 @@ class Admission:
         return policy_set
 
     def _try(self, policy_set: GPIPolicy, record: GPIPolicy, group: list[Candidate], iteration: int) -> bool:
-        """Add ``group`` to Π and the record, unless GPI does worse with it on the validation weights: all or none."""
+        """
+        Add ``group`` to Π and the record, unless GPI does worse with it on the validation weights: all or none. Π with
+        the group is rolled out only where it acts otherwise on Π's decisions (:meth:`ValidationScorer.replayed`).
+        """
         validate = self.validation_weights > 0 and len(policy_set) > 0
         kept = self._episodes(policy_set) if validate else None
         before = 0.0 if kept is None else kept.score

@@ -6,7 +6,9 @@ value of an action taken (:meth:`~sb3_sfgpi.gpi.GPIPolicy.predict_followed`), GP
 its episodes, hence its returns, are those of the whole set. :meth:`ValidationScorer.without` runs again only the
 weights where the member left out decided something, and reuses the rest: the scores are those of full rollouts,
 bit for bit, for a small part of their cost (:class:`~sb3_sfgpi.admission.Admission`'s pruning scores every
-leave-one-out subset of Π). The per-policy values must not depend on the other members, as those of
+leave-one-out subset of Π). Likewise :meth:`ValidationScorer.replayed` scores Π with new policies from Π's recorded
+decisions: GPI over the larger set acts on their observations in one batch, and only the weights where it acts
+otherwise are rolled out. The per-policy values must not depend on the other members, as those of
 :func:`~sb3_sfgpi.common.weights.weighted_sum` do not; and ``reset(seed)`` must determine the env's episode.
 """
 
