@@ -9,7 +9,7 @@ which GPI does better. Why each rule exists, and what it was measured to do, is 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,9 +18,7 @@ from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn import SFDQN
-
-#: GPI's score of a policy set on the validation weights (mean over weights and agents of the discounted w·return).
-Score = Callable[[GPIPolicy], float]
+from sb3_sfgpi.validation import Scored, ValidationScorer
 
 
 @dataclass(frozen=True)
@@ -77,17 +75,17 @@ class Admission:
         self.prune = prune
         self.together = together
         self.verbose = verbose
-        self._score: Score | None = None
-        self._cached: float | None = None  # GPI's score over Π as it stands
+        self._scorer: ValidationScorer | None = None
+        self._cached: Scored | None = None  # GPI's episodes over Π as it stands
 
     def weights(self, reward_dim: int, seed: int) -> np.ndarray:
         """The validation weights of a run with ``seed``, shape ``(reward_dim + validation_weights, reward_dim)``."""
         drawn = random_weights(reward_dim, self.validation_weights, rng=derive_seed(seed, "validation-weights"))
         return np.vstack([np.eye(reward_dim), drawn])
 
-    def start(self, score: Score) -> None:
-        """Score policy sets with ``score`` (GPI on :meth:`weights`, ``episodes`` each) from now on."""
-        self._score, self._cached = score, None
+    def start(self, scorer: ValidationScorer) -> None:
+        """Score policy sets with ``scorer`` (GPI on :meth:`weights`, ``episodes`` each) from now on."""
+        self._scorer, self._cached = scorer, None
 
     def admit(self, record: GPIPolicy, candidates: Sequence[Candidate], iteration: int) -> GPIPolicy:
         """
@@ -107,16 +105,20 @@ class Admission:
         return policy_set
 
     def _try(self, policy_set: GPIPolicy, record: GPIPolicy, group: list[Candidate], iteration: int) -> bool:
-        """Add ``group`` to Π and the record, unless GPI does worse with it on the validation weights: all or none."""
+        """
+        Add ``group`` to Π and the record, unless GPI does worse with it on the validation weights: all or none. Π with
+        the group is rolled out only where it acts otherwise on Π's decisions (:meth:`ValidationScorer.replayed`).
+        """
         validate = self.validation_weights > 0 and len(policy_set) > 0
-        before = self._current(policy_set) if validate else 0.0
+        kept = self._episodes(policy_set) if validate else None
+        before = 0.0 if kept is None else kept.score
         for c in group:
             policy_set.add(c.learner, value=c.value, agent=c.agent, iteration=iteration)
-        self._cached = None
+        self._cached = None if kept is None else self._started().replayed(policy_set, kept)
         if validate and (after := self._current(policy_set)) < before:
             for _ in group:
                 policy_set.pop()
-            self._cached = before
+            self._cached = kept
             policies = "policy" if len(group) == 1 else "policies together"
             self._say(f"{' and '.join(c.agent for c in group)}'s {policies} left out of Π: GPI on the validation "
                       f"weights {after:.4f} with, {before:.4f} without")  # fmt: skip
@@ -126,32 +128,42 @@ class Admission:
         return True
 
     def _pruned(self, policy_set: GPIPolicy, record: GPIPolicy, iteration: int) -> GPIPolicy:
-        """Retire, one at a time, the policy without which GPI does best, while it does better without it."""
+        """
+        Retire, one at a time, the policy without which GPI does best, while it does better without it.
+
+        Each round rolls out again only the weights at which a member was decisive (:meth:`ValidationScorer.without`):
+        the scores of full rollouts of every leave-one-out subset, at the cost of those weights.
+        """
         while len(policy_set) > 1:
-            others = [[j for j in range(len(policy_set)) if j != i] for i in range(len(policy_set))]
-            scores = [self._scored(policy_set.subset(rest)) for rest in others]
+            current, scorer = self._episodes(policy_set), self._started()
+            without = [scorer.without(policy_set, current, i) for i in range(len(policy_set))]
+            scores = [s.score for s in without]
             worst = int(np.argmax(scores))
-            if scores[worst] <= self._current(policy_set):
+            if scores[worst] <= current.score:
                 break
             info = policy_set.infos[worst]
             self._say(f"{info.agent}'s policy of iteration {info.iteration} retired from Π: GPI on the validation "
                       f"weights {scores[worst]:.4f} without it, {self._current(policy_set):.4f} with")  # fmt: skip
             members = [i for i, member in enumerate(record.infos) if member.retired is None]
             record.retire(members[worst], iteration)
-            policy_set = policy_set.subset(others[worst])
-            self._cached = scores[worst]
+            policy_set = policy_set.subset(j for j in range(len(policy_set)) if j != worst)
+            self._cached = without[worst]
         return policy_set
 
     def _current(self, policy_set: GPIPolicy) -> float:
         """GPI's score over Π (cached until Π changes)."""
+        return self._episodes(policy_set).score
+
+    def _episodes(self, policy_set: GPIPolicy) -> Scored:
+        """GPI's episodes over Π on the validation weights (cached until Π changes)."""
         if self._cached is None:
-            self._cached = self._scored(policy_set)
+            self._cached = self._started()(policy_set)
         return self._cached
 
-    def _scored(self, policy_set: GPIPolicy) -> float:
-        if self._score is None:
-            raise RuntimeError("Admission.start(score) must be called before policies are validated")
-        return self._score(policy_set)
+    def _started(self) -> ValidationScorer:
+        if self._scorer is None:
+            raise RuntimeError("Admission.start(scorer) must be called before policies are validated")
+        return self._scorer
 
     def _say(self, message: str) -> None:
         if self.verbose:

@@ -23,12 +23,13 @@ from tqdm.auto import tqdm
 from sb3_sfgpi.admission import Admission, Candidate
 from sb3_sfgpi.common.metrics import hypervolume
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation, gpi_score
+from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.run_settings import VALUE_MODES
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
+from sb3_sfgpi.validation import ValidationScorer
 
 
 @dataclass(frozen=True)
@@ -140,9 +141,7 @@ class OLSCallback(BaseCallback):
         self._tests = TestEvaluation(self.evaluation, runner.rollout, runner.reward_dim, runner.seed, runner.agents)
         validation_weights = self.admission.weights(runner.reward_dim, runner.seed)
         self.admission.start(
-            lambda policy_set: gpi_score(
-                policy_set, validation_weights, runner.rollout, self.admission.episodes, runner.seed, "validation"
-            )
+            ValidationScorer(validation_weights, runner.rollout, self.admission.episodes, runner.seed, "validation")
         )
         self.schedule.start(runner.reward_dim)
         if self.resume and self.run_dir is not None and self.run_dir.has_checkpoint():

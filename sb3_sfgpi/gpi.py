@@ -46,7 +46,7 @@ from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_sp
 from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
-from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap, stack_networks
+from sb3_sfgpi.stacking import Stacked, StackedVmap, WithoutOne, numpy_tables, stack_networks
 
 __all__ = ["MANIFEST", "CorruptPolicySetError", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
 
@@ -66,7 +66,7 @@ class GPIPolicy:
         self._device: th.device | None = None
         self.networks: list[nn.Module] = []
         self.infos: list[PolicyInfo] = []
-        self._stacked: StackedTables | StackedMLP | StackedVmap | None = None
+        self._stacked: Stacked | None = None
         self._weights_cache: tuple[Any, tuple[np.ndarray, th.Tensor, np.ndarray]] | None = None
         for model in models:
             self.add(model)
@@ -196,6 +196,23 @@ class GPIPolicy:
             subset.add(self.networks[i], info.weights, info.value, info.agent, info.iteration, info.retired)
         return subset
 
+    def without(self, member: int) -> GPIPolicy:
+        """
+        A view of the set without the policy at ``member``: it shares this set's networks and batched copy (nothing
+        is copied, nothing is stacked again), so it acts as :meth:`subset` would, for as long as this set is unchanged.
+        For scoring leave-one-out sets (:class:`~sb3_sfgpi.validation.ValidationScorer`); to keep or change, use
+        :meth:`subset`.
+
+        :raises IndexError: no policy at ``member``
+        """
+        if not 0 <= member < len(self):
+            raise IndexError(f"no policy {member} in a set of {len(self)}")
+        view = GPIPolicy(device=self.device)
+        view.networks = [net for i, net in enumerate(self.networks) if i != member]
+        view.infos = [info for i, info in enumerate(self.infos) if i != member]
+        view._device, view._stacked = self.device, WithoutOne(self._stack(), member)
+        return view
+
     def members(self) -> GPIPolicy:
         """The policies not retired (see :meth:`retire`), in their order: Π, as GPI acts over it."""
         return self.subset(i for i, info in enumerate(self.infos) if info.retired is None)
@@ -248,28 +265,42 @@ class GPIPolicy:
                 kept.append(i)
         return self.subset(kept)
 
-    def joint_policy(self, w: np.ndarray | Sequence[float], agents: Sequence[str] | None = None) -> JointPolicy:
+    def joint_policy(
+        self,
+        w: np.ndarray | Sequence[float],
+        agents: Sequence[str] | None = None,
+        trace: list[tuple[np.ndarray, np.ndarray, list[frozenset[int]]]] | None = None,
+    ) -> JointPolicy:
         """
         The joint policy of agents acting by GPI for the preference ``w``.
 
         :param w: preference weights
         :param agents: None: every agent acts by GPI over the whole set (one batched call per step); the agents'
             names: each of them acts by GPI over the policies it learned itself (:meth:`agent_policies`)
-        :raises ValueError: bad weights; an agent without policies in the set
+        :param trace: where given (``agents`` None), every decision appends to it the agents' observations, their
+            actions and the members GPI followed for each (:meth:`predict_followed`); the actions are the same
+        :raises ValueError: bad weights; an agent without policies in the set; ``trace`` with ``agents``
         """
         self._validated_weights(w)
+        if trace is not None and agents is not None:
+            raise ValueError("decisions are traced where every agent acts by GPI over the whole set")
         own = None if agents is None else {agent: self.agent_policies(agent) for agent in agents}
 
         def act(observations: dict[str, Any]) -> dict[str, int]:
             names = list(observations)
             if own is None:
-                actions, _ = self.predict(np.stack([observations[a] for a in names]), w)
+                batch = np.stack([observations[a] for a in names])
+                if trace is None:
+                    actions, _ = self.predict(batch, w)
+                else:
+                    actions, members = self.predict_followed(batch, w)
+                    trace.append((batch, actions, members))
                 return dict(zip(names, actions.tolist(), strict=True))
             return {a: int(own[a].predict(observations[a], w)[0]) for a in names}
 
         return act
 
-    def _stack(self) -> StackedTables | StackedMLP | StackedVmap:
+    def _stack(self) -> Stacked:
         if self._stacked is None:
             self._stacked = stack_networks(self.networks)
         return self._stacked
@@ -343,11 +374,44 @@ class GPIPolicy:
 
     def _gpi_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
         stacked = self._stack()
-        if isinstance(stacked, StackedTables) and self.device.type == "cpu":
+        if numpy_tables(stacked) and self.device.type == "cpu":
             return stacked.q_values_numpy(obs, weights[2])
         obs_tensor = th.as_tensor(obs, device=self.device)
         with th.no_grad():
             return th.amax(weighted_sum(stacked.psi(obs_tensor), weights[1]), dim=0).cpu().numpy()
+
+    def _policy_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
+        """Every policy's action values ``w · ψ^π(s, a)``, shape ``(n_policies, batch, n_actions)``."""
+        stacked = self._stack()
+        if numpy_tables(stacked) and self.device.type == "cpu":
+            return stacked.policy_q_numpy(obs, weights[2]).transpose(1, 0, 2)
+        obs_tensor = th.as_tensor(obs, device=self.device)
+        with th.no_grad():
+            return weighted_sum(stacked.psi(obs_tensor), weights[1]).cpu().numpy()
+
+    def predict_followed(
+        self, observation: np.ndarray, w: np.ndarray | Sequence[float]
+    ) -> tuple[np.ndarray, list[frozenset[int]]]:
+        """
+        GPI actions of a batch, the same as :meth:`predict`'s, and for each observation the members GPI followed: those
+        that attain GPI's value of the action taken, ``max_π w · ψ^π(s, a*)``.
+
+        Without a member, GPI takes the same action wherever another member attains that value too: the action's value
+        is unchanged, no other action's grew, and ties still go to the first action. Each policy's values are computed
+        on their own (:func:`~sb3_sfgpi.common.weights.weighted_sum`), whatever the other members.
+
+        :param observation: a batch of observations
+        :param w: preference weights of length ``d``
+        :return: the actions, shape ``(batch,)``, and the members followed, one set of indices per observation
+        """
+        weights = self._validated_weights(w)
+        obs, _ = self._obs_to_array(observation)
+        q = self._policy_q(obs, weights)
+        best = q.max(axis=0)
+        actions = best.argmax(axis=1)
+        rows = np.arange(len(actions))
+        attaining = q[:, rows, actions] == best[rows, actions]  # (n_policies, batch)
+        return actions, [frozenset(np.flatnonzero(column).tolist()) for column in attaining.T]
 
     def predict(
         self,

@@ -12,6 +12,7 @@ decision; see ``benchmarks/bench_gpi.py``).
 from __future__ import annotations
 
 import copy
+from typing import TypeGuard
 
 import numpy as np
 import torch as th
@@ -55,10 +56,14 @@ class StackedTables:
 
     def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """GPI action values of a batch, in numpy (CPU sets): cheaper than torch for a few small operations."""
+        return self.policy_q_numpy(obs, weights).max(axis=1)
+
+    def policy_q_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Every policy's action values ``w · ψ^π(s, a)`` of a batch, shape ``(batch, P, A)`` (CPU sets)."""
         assert self.tables_numpy is not None
         index = self.rows(obs)  # raises ValueError for an observation outside the space
         rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
-        return weighted_sum(rows, weights).reshape(-1, self.n_policies, self.n_actions).max(axis=1)
+        return weighted_sum(rows, weights).reshape(-1, self.n_policies, self.n_actions)
 
 
 class StackedMLP:
@@ -126,6 +131,37 @@ class StackedVmap:
             return functional_call(skeleton, (p, b), (x,))
 
         return th.vmap(one, in_dims=(0, 0, None))(self.params, self.buffers, obs_tensor)
+
+
+class WithoutOne:
+    """
+    A stacked set without one of its policies: the others' ``ψ`` (or action values) from the whole set's stack, in
+    their order, nothing copied. Each policy's values are those of the whole set's pass.
+    """
+
+    def __init__(self, stacked: Stacked, member: int):
+        self.stacked, self.member = stacked, member
+        self.tabular: bool = isinstance(stacked, StackedTables) or (isinstance(stacked, WithoutOne) and stacked.tabular)
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        psi = self.stacked.psi(obs_tensor)
+        return th.cat([psi[: self.member], psi[self.member + 1 :]])
+
+    def policy_q_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """The others' action values, shape ``(batch, P - 1, A)`` (CPU tables)."""
+        return np.delete(self.stacked.policy_q_numpy(obs, weights), self.member, axis=1)  # type: ignore[union-attr]
+
+    def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        return self.policy_q_numpy(obs, weights).max(axis=1)
+
+
+#: A set's networks evaluated in one batched pass.
+Stacked = StackedTables | StackedMLP | StackedVmap | WithoutOne
+
+
+def numpy_tables(stacked: Stacked) -> TypeGuard[StackedTables | WithoutOne]:
+    """Whether the stack holds tables, whose action values numpy computes (on the CPU)."""
+    return isinstance(stacked, StackedTables) or (isinstance(stacked, WithoutOne) and stacked.tabular)
 
 
 def stack_networks(networks: list[nn.Module]) -> StackedTables | StackedMLP | StackedVmap:

@@ -1,0 +1,140 @@
+"""GPI scored on validation weights, with the members it followed: leave-one-out scores without most rollouts.
+
+GPI's actions are a deterministic function of the observation, ``w`` and the set, and the episodes of validation
+weight ``i`` start from the same seed for every set scored. So where a member was never the only one to attain GPI's
+value of an action taken (:meth:`~sb3_sfgpi.gpi.GPIPolicy.predict_followed`), GPI without it takes the same actions:
+its episodes, hence its returns, are those of the whole set. :meth:`ValidationScorer.without` runs again only the
+weights where the member left out decided something, and reuses the rest: the scores are those of full rollouts,
+bit for bit, for a small part of their cost (:class:`~sb3_sfgpi.admission.Admission`'s pruning scores every
+leave-one-out subset of Π). Likewise :meth:`ValidationScorer.replayed` scores Π with new policies from Π's recorded
+decisions: GPI over the larger set acts on their observations in one batch, and only the weights where it acts
+otherwise are rolled out. The per-policy values must not depend on the other members, as those of
+:func:`~sb3_sfgpi.common.weights.weighted_sum` do not; and ``reset(seed)`` must determine the env's episode.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sb3_sfgpi.common.rollouts import EpisodeReturns
+from sb3_sfgpi.common.seeding import derive_seed
+from sb3_sfgpi.evaluation import Rollout, summarize_test_episodes
+from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
+
+#: One weight's episodes: the returns, the members followed, and the decisions (observations, actions).
+Run = tuple[EpisodeReturns, frozenset[frozenset[int]], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Scored:
+    """
+    GPI's episodes over a policy set at every validation weight.
+
+    :param score: the mean over weights and agents of the discounted w·return (what validation compares)
+    :param returns: per weight, every agent's returns
+    :param followed: per weight, the sets of members that attained GPI's value of an action taken (every agent,
+        every decision, every episode), as indices into the set
+    :param decisions: per weight, the observations GPI acted on (every agent, decision and episode, in order) and
+        its actions
+    """
+
+    score: float
+    returns: tuple[EpisodeReturns, ...]
+    followed: tuple[frozenset[frozenset[int]], ...]
+    decisions: tuple[tuple[np.ndarray, np.ndarray], ...]
+
+    def decisive(self, member: int) -> list[int]:
+        """
+        The weights at which GPI without ``member`` may act otherwise: it alone attained a value GPI acted on (or no
+        member did: a value that is not a number, where every member counts as decisive).
+        """
+        alone, empty = frozenset({member}), frozenset[int]()
+        return [i for i, sets in enumerate(self.followed) if alone in sets or empty in sets]
+
+    def decisive_members(self) -> set[int]:
+        """The members without which GPI acts otherwise at some weight (the others' removal changes nothing)."""
+        return {m for sets in self.followed for members in sets if len(members) == 1 for m in members}
+
+
+def _without(sets: frozenset[frozenset[int]], member: int) -> frozenset[frozenset[int]]:
+    """The followed sets of a set's episodes, in the indices of the set without ``member`` (episodes unchanged)."""
+    return frozenset(frozenset(j - (j > member) for j in members if j != member) for members in sets)
+
+
+class ValidationScorer:
+    """
+    GPI over a policy set on validation weights, every agent acting by it; the episodes of weight ``i`` start from
+    ``derive_seed(seed, purpose, i)`` (the score of :func:`~sb3_sfgpi.evaluation.gpi_score`).
+
+    :param weights: the validation weights, shape ``(n, d)``
+    :param rollout: runs a joint policy for some episodes from a seed
+    :param episodes: episodes per weight
+    :param seed: the run's seed
+    :param purpose: what the episodes are for (a part of their seeds)
+    """
+
+    def __init__(self, weights: np.ndarray, rollout: Rollout, episodes: int, seed: int, purpose: str = "validation"):
+        self.weights = np.asarray(weights, dtype=np.float64)
+        self.rollout, self.episodes = rollout, episodes
+        self.seeds = [derive_seed(seed, purpose, i) for i in range(len(self.weights))]
+        #: weights rolled out so far (one call of ``rollout`` each)
+        self.rollouts = 0
+
+    def __call__(self, policy_set: GPIPolicy) -> Scored:
+        """GPI's episodes over ``policy_set`` at every weight."""
+        return self._scored([self._episodes(policy_set, i) for i in range(len(self.weights))])
+
+    def replayed(self, policy_set: GPIPolicy, scored: Scored) -> Scored:
+        """
+        What ``policy_set`` scores, from another set's episodes ``scored`` (e.g. Π's, for Π and new policies): at each
+        weight GPI over ``policy_set`` acts on the decisions' observations in one batch; where it takes the same
+        actions, its episodes are those ones; elsewhere they are rolled out. Tables only (their values of a batch
+        are those of each observation alone); other sets are rolled out at every weight.
+        """
+        if not isinstance(policy_set.networks[0], TabularSFNetwork):
+            return self(policy_set)
+        runs = []
+        for i, (returns, (observations, actions)) in enumerate(zip(scored.returns, scored.decisions, strict=True)):
+            again, members = (
+                policy_set.predict_followed(observations, self.weights[i]) if len(actions) else (actions, [])
+            )
+            same = np.array_equal(again, actions)
+            runs.append(
+                (returns, frozenset(members), (observations, actions)) if same else self._episodes(policy_set, i)
+            )
+        return self._scored(runs)
+
+    def without(self, policy_set: GPIPolicy, scored: Scored, member: int) -> Scored:
+        """
+        What ``policy_set`` without its ``member`` scores, from ``scored`` (``policy_set``'s own): only the weights
+        at which the member was decisive (:meth:`Scored.decisive`) are rolled out again.
+        """
+        again = scored.decisive(member)
+        followed = tuple(_without(sets, member) for sets in scored.followed)
+        runs = list(zip(scored.returns, followed, scored.decisions, strict=True))
+        if not again:
+            return Scored(scored.score, scored.returns, followed, scored.decisions)
+        rest = policy_set.without(member)
+        for i in again:
+            runs[i] = self._episodes(rest, i)
+        return self._scored(runs)
+
+    def _episodes(self, policy_set: GPIPolicy, i: int) -> Run:
+        trace: list[tuple[np.ndarray, np.ndarray, list[frozenset[int]]]] = []
+        self.rollouts += 1
+        policy = policy_set.joint_policy(self.weights[i], trace=trace)
+        returns = self.rollout(policy, self.episodes, self.seeds[i])
+        if not trace:  # no decision (episodes that end at reset)
+            return returns, frozenset(), (np.empty((0,)), np.empty((0,), dtype=np.int64))
+        observations = np.concatenate([batch for batch, _, _ in trace])
+        actions = np.concatenate([acted for _, acted, _ in trace])
+        return returns, frozenset(m for _, _, members in trace for m in members), (observations, actions)
+
+    def _scored(self, runs: Sequence[Run]) -> Scored:
+        returns = tuple(r for r, _, _ in runs)
+        score = summarize_test_episodes(self.weights, returns)[0]["mean_return"]
+        return Scored(score, returns, tuple(f for _, f, _ in runs), tuple(d for _, _, d in runs))
