@@ -192,7 +192,7 @@ class TabularSFNetwork(BasePolicy):
                 "use MlpPolicy"
             )
         strides = np.concatenate([np.cumprod(n_values[::-1])[::-1][1:], [1]]).astype(np.int64)
-        self._low, self._strides, self._n_values = low.astype(np.int64), strides, n_values.astype(np.int64)
+        self._low, self._strides, self._n_values = low.astype(np.int64), strides, n_values.astype(np.uint64)
         self._first_row = int(self._low @ strides)  # the row index of the lowest observation, before it is subtracted
         self.register_buffer("low", th.as_tensor(low, dtype=th.long), persistent=False)
         self.register_buffer("strides", th.as_tensor(strides, dtype=th.long), persistent=False)
@@ -208,12 +208,19 @@ class TabularSFNetwork(BasePolicy):
 
         :raises ValueError: the table is not on the CPU
         """
+        view = self.cpu_entries()
+        if view is None:
+            raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
+        return view
+
+    def cpu_entries(self) -> np.ndarray | None:
+        """:meth:`entries`, or None where the table is not on the CPU (one view per storage of the table, kept)."""
         weight = self.table.weight
-        cached = self.__dict__.get("_entries")  # (weight, its data pointer, the view): one view per storage
+        cached = self.__dict__.get("_entries")  # (weight, its data pointer, the view)
         if cached is not None and cached[0] is weight and cached[1] == weight.data_ptr():
             return cached[2]
-        if weight.device.type != "cpu":
-            raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
+        if not weight.is_cpu:
+            return None
         view = weight.detach().numpy().reshape(-1, self.reward_dim)
         self.__dict__["_entries"] = (weight, weight.data_ptr(), view)
         return view
@@ -239,10 +246,10 @@ class TabularSFNetwork(BasePolicy):
 
     def _check_inside(self, raw: np.ndarray, values: np.ndarray) -> None:
         """Refuse raw observations (``values``: as integers, one row each) outside the observation space."""
-        components = values - self._low
-        outside = (components < 0) | (components >= self._n_values)
+        # Below ``low``, a component wraps around to a huge unsigned value: one comparison checks both bounds.
+        outside = (values - self._low).view(np.uint64) >= self._n_values
         if raw.dtype.kind == "f":
-            outside |= (raw != np.floor(raw)).reshape(components.shape)
+            outside |= (raw != np.floor(raw)).reshape(values.shape)
         if outside.any():
             first = raw[int(np.argmax(outside.any(axis=1)))].tolist()
             raise ValueError(f"observation {first} is outside the observation space {self.observation_space}")
