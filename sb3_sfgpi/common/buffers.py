@@ -118,6 +118,7 @@ class MOReplayBuffer(ReplayBuffer):
             raise ValueError(f"add_rows expects rewards of shape (k, {self.reward_dim}), got {np.shape(rewards)}")
         capacity = self.buffer_size * self.n_envs
         first = self.pos * self.n_envs + self._rows_at_pos
+        whole_step = self._rows_at_pos == 0 and k == self.n_envs  # exactly the rows at ``pos``: written as one
         # A slice writes in place without an index array; only a write that wraps around needs one.
         rows = slice(first, first + k) if first + k <= capacity else (first + np.arange(k)) % capacity
         for storage, values in (
@@ -128,8 +129,10 @@ class MOReplayBuffer(ReplayBuffer):
             (self.dones, dones),
             (self.timeouts, timeouts if self.handle_timeout_termination else np.zeros(k)),
         ):
-            flat = storage.reshape(capacity, *storage.shape[2:])  # a view: the storage is contiguous
-            flat[rows] = np.asarray(values).reshape(k, *storage.shape[2:])
+            if whole_step:
+                storage[self.pos] = np.asarray(values).reshape(storage.shape[1:])
+            else:  # the flat rows of a view of shape (buffer_size * n_envs, ...): the storage is contiguous
+                storage.reshape(capacity, *storage.shape[2:])[rows] = np.asarray(values).reshape(k, *storage.shape[2:])
         end = first + k
         self.full = self.full or end >= capacity
         self.pos, self._rows_at_pos = divmod(end % capacity, self.n_envs)
