@@ -9,10 +9,15 @@ from __future__ import annotations
 
 import os
 import statistics
+import subprocess
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
+
+#: The repository (the candidate's source tree).
+ROOT = Path(__file__).resolve().parent.parent
 
 
 @dataclass
@@ -87,6 +92,19 @@ def paired_ratio(samples: dict[str, list[float]], slow: str, fast: str) -> tuple
         return ratios[0], ratios[0], ratios[0]
     q1, _, q3 = statistics.quantiles(ratios, n=4, method="inclusive")
     return statistics.median(ratios), q1, q3
+
+
+def baseline_tree(into: Path, commit: str) -> bool:
+    """
+    The source of ``commit`` of this repository (``git archive``) extracted into ``into``, for a baseline run with
+    ``PYTHONPATH=into``; False where it cannot be read (no git, a shallow clone).
+    """
+    try:
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit], capture_output=True, check=True)
+        subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        return False
+    return (into / "sb3_sfgpi" / "__init__.py").is_file()
 
 
 def calls_for(fn: Callable[[], Any], seconds: float, cap: int = 100_000) -> int:

@@ -19,11 +19,10 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmarks._common import Row, fmt_time, interleaved_samples, paired_ratio
+from benchmarks._common import ROOT, Row, baseline_tree, fmt_time, interleaved_samples, paired_ratio
 
 #: The last commit whose ``import sb3_sfgpi`` imported everything (issue 48, item 4: start-up).
 BASELINE_COMMIT = "f9373af"
-ROOT = Path(__file__).resolve().parent.parent
 #: What ``sb3_sfgpi/__init__.py`` imported eagerly before: forced first in the fallback baseline.
 EAGER = (
     "import sb3_sfgpi.admission, sb3_sfgpi.callbacks, sb3_sfgpi.common.mo_callbacks, sb3_sfgpi.evaluation, "
@@ -32,16 +31,6 @@ EAGER = (
 CLI = "import sys; from sb3_sfgpi.cli import main; sys.argv[0] = 'sb3-sfgpi'; sys.exit(main({argv!r}))"
 COUNT = "import sys; from sb3_sfgpi.cli import parse_args\ntry: parse_args({argv!r})\nexcept SystemExit: pass\n"
 COUNT += "print(len(sys.modules), file=sys.stderr)"
-
-
-def _baseline_tree(into: Path, commit: str) -> bool:
-    """The source of ``commit`` extracted into ``into``; False where it cannot be read."""
-    try:
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit], capture_output=True, check=True)
-        subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
-    except (OSError, subprocess.CalledProcessError):
-        return False
-    return (into / "sb3_sfgpi" / "__init__.py").is_file()
 
 
 def _command(tree: Path, code: str, prefix: str = "") -> Callable[[], None]:
@@ -66,7 +55,7 @@ def run(quick: bool = False) -> list[Row]:
     rows = []
     commit = os.environ.get("SB3_SFGPI_STARTUP_BASELINE", BASELINE_COMMIT)
     with tempfile.TemporaryDirectory(prefix="sfgpi_startup_") as folder:
-        from_git = _baseline_tree(Path(folder), commit)
+        from_git = baseline_tree(Path(folder), commit)
         base, prefix = (Path(folder), "") if from_git else (ROOT, EAGER + "\n")
         what = f"commit {commit}" if from_git else "this tree with the former eager imports forced"
         for argv in (["--help"], ["plot", "--help"]):

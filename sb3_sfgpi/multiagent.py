@@ -327,8 +327,9 @@ class MultiAgentRunner:
         observations move on to theirs.
         """
         learner = self.learners[name]
-        next_obs = np.stack([np.asarray(step.obs[agent]) for agent in step.agents])
-        rewards = np.stack([np.asarray(step.rewards[agent], dtype=np.float32) for agent in step.agents])
+        # np.array of a list of equal arrays is np.stack of them, in a third of the time (one or two agents a step).
+        next_obs = np.array([step.obs[agent] for agent in step.agents])
+        rewards = np.array([step.rewards[agent] for agent in step.agents], dtype=np.float32)
         dones = np.array([step.terminations[agent] or step.truncations[agent] for agent in step.agents])
         infos = [self._monitored_info(agent, step) for agent in step.agents]
         timeouts = np.array([info.get("TimeLimit.truncated", False) for info in infos])
@@ -349,7 +350,8 @@ class MultiAgentRunner:
         learner.replay_buffer.add_rows(*rows)
         learner._update_current_progress_remaining(learner.num_timesteps, learner._total_timesteps)
         learner._on_step()
-        episodes_before, learner._episode_num = learner._episode_num, learner._episode_num + int(rows.dones.sum())
+        episodes_before = learner._episode_num
+        learner._episode_num += np.count_nonzero(rows.dones)
         if learner._episode_num // self.log_interval > episodes_before // self.log_interval:
             learner.dump_logs()  # SB3's log_interval: a point of the learning curve (at most one per joint step)
         if learner.num_timesteps > learner.learning_starts and learner._n_calls % learner.train_freq.frequency == 0:

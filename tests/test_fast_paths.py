@@ -120,7 +120,7 @@ def test_sampled_arrays_equal_two_index_reads_with_the_same_random_numbers(n_env
         buffer.observations[inds, envs, :],
         buffer.actions[inds, envs, :],
         source[np.arange(64), envs, :],
-        (buffer.dones[inds, envs] * (1 - buffer.timeouts[inds, envs])).reshape(-1, 1),
+        buffer.dones[inds, envs] * (1 - buffer.timeouts[inds, envs]),
         buffer.rewards[inds, envs, :],
     )
     assert np.random.random() == after  # the same random numbers were drawn

@@ -118,7 +118,9 @@ class MOReplayBuffer(ReplayBuffer):
             raise ValueError(f"add_rows expects rewards of shape (k, {self.reward_dim}), got {np.shape(rewards)}")
         capacity = self.buffer_size * self.n_envs
         first = self.pos * self.n_envs + self._rows_at_pos
-        rows = (first + np.arange(k)) % capacity
+        whole_step = self._rows_at_pos == 0 and k == self.n_envs  # exactly the rows at ``pos``: written as one
+        # A slice writes in place without an index array; only a write that wraps around needs one.
+        rows = slice(first, first + k) if first + k <= capacity else (first + np.arange(k)) % capacity
         for storage, values in (
             (self.observations, obs),
             (self.next_observations, next_obs),
@@ -127,8 +129,10 @@ class MOReplayBuffer(ReplayBuffer):
             (self.dones, dones),
             (self.timeouts, timeouts if self.handle_timeout_termination else np.zeros(k)),
         ):
-            flat = storage.reshape(capacity, *storage.shape[2:])  # a view: the storage is contiguous
-            flat[rows] = np.asarray(values).reshape(k, *storage.shape[2:])
+            if whole_step:
+                storage[self.pos] = np.asarray(values).reshape(storage.shape[1:])
+            else:  # the flat rows of a view of shape (buffer_size * n_envs, ...): the storage is contiguous
+                storage.reshape(capacity, *storage.shape[2:])[rows] = np.asarray(values).reshape(k, *storage.shape[2:])
         end = first + k
         self.full = self.full or end >= capacity
         self.pos, self._rows_at_pos = divmod(end % capacity, self.n_envs)
@@ -151,7 +155,7 @@ class MOReplayBuffer(ReplayBuffer):
             not done), rewards ``(B, d)``
         """
         obs, actions, next_obs, dones, rewards = self._arrays(self._sample_indices(batch_size))
-        return obs, actions.reshape(-1), next_obs, dones.reshape(-1), rewards
+        return obs, actions.reshape(-1), next_obs, dones, rewards
 
     def stored_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """
@@ -164,7 +168,7 @@ class MOReplayBuffer(ReplayBuffer):
         indices = (np.arange(start, stop) + shift) % self.buffer_size
         flat = (indices[:, None] * self.n_envs + np.arange(self.n_envs)).reshape(-1)
         obs, actions, next_obs, dones, rewards = self._gather(flat)
-        return obs, actions.reshape(-1), next_obs, dones.reshape(-1), rewards
+        return obs, actions.reshape(-1), next_obs, dones, rewards
 
     def _valid_positions(self) -> tuple[int, int, int]:
         """The stored transitions are at ``(i + shift) % buffer_size`` for ``start <= i < stop``."""
@@ -175,7 +179,8 @@ class MOReplayBuffer(ReplayBuffer):
 
     def _sample_indices(self, batch_size: int) -> np.ndarray:
         start, stop, shift = self._valid_positions()
-        return (np.random.randint(start, stop, size=batch_size) + shift) % self.buffer_size
+        indices = np.random.randint(start, stop, size=batch_size)
+        return (indices + shift) % self.buffer_size if shift else indices  # without a shift, all in [0, buffer_size)
 
     def _arrays(self, batch_inds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         # Each array is read as (buffer_size * n_envs, ...) at the flat rows ``transition * n_envs + env``: one
@@ -187,7 +192,7 @@ class MOReplayBuffer(ReplayBuffer):
         return self._gather(batch_inds * self.n_envs + env_indices)
 
     def _gather(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The transitions at the flat rows ``transition * n_envs + env``, in the layout of :meth:`_arrays`."""
+        """The transitions at the flat rows ``transition * n_envs + env``; dones of shape ``(B,)``."""
         # With one array for obs and next obs, the next observation is the same env's one step later.
         next_flat = (flat + self.n_envs) % (self.buffer_size * self.n_envs) if self.optimize_memory_usage else flat
         next_source = self.observations if self.optimize_memory_usage else self.next_observations
@@ -197,7 +202,7 @@ class MOReplayBuffer(ReplayBuffer):
             _rows(self.actions, flat),
             _rows(next_source, next_flat),
             # A time-limit truncation is not a termination: it bootstraps.
-            (dones * (1 - timeouts)).reshape(-1, 1),
+            dones * (1 - timeouts),
             _rows(self.rewards, flat),
         )
 
@@ -207,7 +212,7 @@ class MOReplayBuffer(ReplayBuffer):
                 "Reward normalisation (VecNormalize(norm_reward=True)) is not supported for vector rewards"
             )
         obs, actions, next_obs, dones, rewards = self._arrays(batch_inds)
-        data = (self._normalize_obs(obs, env), actions, self._normalize_obs(next_obs, env), dones, rewards)
+        data = (self._normalize_obs(obs, env), actions, self._normalize_obs(next_obs, env), dones[:, None], rewards)
         return ReplayBufferSamples(*tuple(map(self.to_torch, data)))
 
 

@@ -56,7 +56,8 @@ def greedy_entries(entries: np.ndarray, first: np.ndarray, n_actions: int, weigh
     :return: the row of each state's greedy action (ties, exactly equal
         :func:`~sb3_sfgpi.common.weights.weighted_sum` values, go to the first), shape ``(batch,)``
     """
-    return first + weighted_sum(entries[first[:, None] + np.arange(n_actions)], weights).argmax(axis=1)
+    psi = entries.reshape(-1, n_actions, entries.shape[1])[first // n_actions]  # one index per state, not per entry
+    return first + weighted_sum(psi, weights).argmax(axis=1)
 
 
 def argmax_random_ties(q_values: np.ndarray, rng: np.random.Generator | Any = np.random) -> np.ndarray:
@@ -191,7 +192,8 @@ class TabularSFNetwork(BasePolicy):
                 "use MlpPolicy"
             )
         strides = np.concatenate([np.cumprod(n_values[::-1])[::-1][1:], [1]]).astype(np.int64)
-        self._low, self._strides, self._n_values = low.astype(np.int64), strides, n_values.astype(np.int64)
+        self._low, self._strides, self._n_values = low.astype(np.int64), strides, n_values.astype(np.uint64)
+        self._first_row = int(self._low @ strides)  # the row index of the lowest observation, before it is subtracted
         self.register_buffer("low", th.as_tensor(low, dtype=th.long), persistent=False)
         self.register_buffer("strides", th.as_tensor(strides, dtype=th.long), persistent=False)
         self.reward_dim = reward_dim
@@ -206,10 +208,26 @@ class TabularSFNetwork(BasePolicy):
 
         :raises ValueError: the table is not on the CPU
         """
-        weight = self.table.weight
-        if weight.device.type != "cpu":
+        view = self.cpu_entries()
+        if view is None:
             raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
-        return weight.detach().numpy().reshape(-1, self.reward_dim)
+        return view
+
+    def cpu_entries(self) -> np.ndarray | None:
+        """:meth:`entries`, or None where the table is not on the CPU (one view per storage of the table, kept)."""
+        weight = self.table.weight
+        cached = self.__dict__.get("_entries")  # (weight, its data pointer, the view)
+        if cached is not None and cached[0] is weight and cached[1] == weight.data_ptr():
+            return cached[2]
+        if not weight.is_cpu:
+            return None
+        view = weight.detach().numpy().reshape(-1, self.reward_dim)
+        self.__dict__["_entries"] = (weight, weight.data_ptr(), view)
+        return view
+
+    def __getstate__(self) -> dict[str, Any]:
+        # A copy (deepcopy, pickle) makes its own view of its own table: the cached one is of this table's memory.
+        return {key: value for key, value in super().__getstate__().items() if key != "_entries"}
 
     def rows(self, obs: np.ndarray, check: bool = True) -> np.ndarray:
         """
@@ -221,15 +239,20 @@ class TabularSFNetwork(BasePolicy):
         :raises ValueError: an observation outside the observation space
         """
         raw = np.asarray(obs)
-        components = raw.astype(np.int64).reshape(len(raw), self._low.size) - self._low
+        values = raw.astype(np.int64, copy=False).reshape(len(raw), self._low.size)
         if check:
-            outside = (components < 0) | (components >= self._n_values)
-            if raw.dtype.kind == "f":
-                outside |= (raw != np.floor(raw)).reshape(components.shape)
-            if outside.any():
-                first = raw[int(np.argmax(outside.any(axis=1)))].tolist()
-                raise ValueError(f"observation {first} is outside the observation space {self.observation_space}")
-        return components @ self._strides
+            self._check_inside(raw, values)
+        return values @ self._strides - self._first_row  # (values - low) @ strides, exactly: integers
+
+    def _check_inside(self, raw: np.ndarray, values: np.ndarray) -> None:
+        """Refuse raw observations (``values``: as integers, one row each) outside the observation space."""
+        # Below ``low``, a component wraps around to a huge unsigned value: one comparison checks both bounds.
+        outside = (values - self._low).view(np.uint64) >= self._n_values
+        if raw.dtype.kind == "f":
+            outside |= (raw != np.floor(raw)).reshape(values.shape)
+        if outside.any():
+            first = raw[int(np.argmax(outside.any(axis=1)))].tolist()
+            raise ValueError(f"observation {first} is outside the observation space {self.observation_space}")
 
     def state_index(self, obs: th.Tensor) -> th.Tensor:
         """

@@ -280,28 +280,25 @@ class TabularPolicy(SFDQNPolicy):
         """A new zero-initialised SF table."""
         return TabularSFNetwork(self.observation_space, self.action_space, self.reward_dim).to(self.device)  # type: ignore[arg-type]
 
-    def _on_cpu(self) -> bool:
-        # ``self.device`` walks the parameters; the table's own tensor says it directly.
-        return self.sf_net.table.weight.device.type == "cpu"
-
     def greedy(
         self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
     ) -> tuple[np.ndarray, bool]:
         """``argmax_a w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.greedy`)."""
-        if not self._on_cpu():
+        if self.sf_net.cpu_entries() is None:
             return super().greedy(observation, weights, random_ties)
         q_values, vectorized = self.q_values(observation, weights)
         return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
 
     def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """``w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.q_values`)."""
-        if not self._on_cpu():
+        net = self.sf_net
+        entries = net.cpu_entries()
+        if entries is None:
             return super().q_values(observation, weights)
         # SB3's is_vectorized_observation, without its image-transpose step (integer spaces are never images).
         vectorized = is_vectorized_observation(observation, self.observation_space)
-        net = self.sf_net
         obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
-        psi = net.table.weight.detach().numpy()[net.rows(obs)].reshape(-1, net.n_actions, self.reward_dim)
+        psi = entries.reshape(-1, net.n_actions, self.reward_dim)[net.rows(obs)]
         return weighted_sum(psi, np.asarray(weights, dtype=np.float32)), vectorized
 
     def fill(self, value: float) -> None:
@@ -369,18 +366,17 @@ class TabularPolicy(SFDQNPolicy):
 
         :return: the loss before the step
         """
-        net, target_net = self.sf_net, self.sf_net_target
-        entries = net.entries()
         if vec_normalize_env is not None and vec_normalize_env.norm_obs:
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
+        net, target_net = self.sf_net, self.sf_net_target
+        entries, n_actions = net.entries(), net.n_actions
         obs, actions, next_obs, dones, rewards = replay_buffer.sample_arrays(batch_size)
-        n_actions = net.n_actions
         next_flat = greedy_entries(
             entries, net.rows(next_obs, check=False) * n_actions, n_actions, self.weights.numpy()
         )
         next_entries = target_net.entries() if target_net is not net else entries
         target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_entries[next_flat]
-        flat = net.rows(obs, check=False) * n_actions + actions.astype(np.int64)
+        flat = net.rows(obs, check=False) * n_actions + actions.astype(np.int64, copy=False)
         td_error = target_psi - entries[flat]
         np.add.at(entries, flat, self.optimizer.param_groups[0]["lr"] * td_error)
         return float(0.5 * np.square(td_error).sum())
