@@ -113,8 +113,18 @@ def test_a_view_without_a_member_acts_as_the_subset(tables, states, w0):
             np.testing.assert_array_equal(rest.predict(obs, w)[0], actions)
 
 
-def test_a_view_of_mlp_networks_without_a_member_gives_the_subsets_values(make_random_mlp):
-    policy_set = GPIPolicy()
+@pytest.mark.parametrize(
+    "device",
+    [
+        "cpu",
+        pytest.param(
+            "cuda", marks=[pytest.mark.cuda, pytest.mark.skipif(not th.cuda.is_available(), reason="needs a CUDA GPU")]
+        ),
+    ],
+)
+def test_a_view_of_mlp_networks_without_a_member_gives_the_subsets_values(make_random_mlp, device):
+    """On the GPU too: a stacked product's per-policy values must not depend on how many policies are stacked."""
+    policy_set = GPIPolicy(device=device)
     for seed in range(5):
         policy_set.add(make_random_mlp(seed), weights=[1.0, 1.0, 1.0])
     obs = np.random.default_rng(0).random((32, 4)).astype(np.float32)
