@@ -95,7 +95,8 @@ def test_a_broken_copy_stops_training_with_its_error_and_bad_options_are_refused
 
 def test_cli_trains_on_copies_and_refuses_to_change_their_number_on_resume(tmp_path):
     out = tmp_path / "fr"
-    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--no-progress"]
+    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--no-progress",
+             "--set", "n_test_weights=2", "--set", "validation_weights=0", "--set", "prune=false"]  # fmt: skip
     assert main([*train, "--set", "n_envs=2", "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["n_envs"] == 2
     assert json.loads((out / "checkpoint.json").read_text())["timesteps"] == 100  # joint steps, as with one env

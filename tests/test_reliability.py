@@ -234,7 +234,9 @@ def small_disk(tmp_path):
 
 def test_a_full_disk_stops_training_in_one_line_and_the_checkpoint_survives(small_disk):
     out = small_disk / "run"
-    train = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(out), "--no-progress"]
+    # the disk is what is tested, not policy validation (off: its 100 weights' rollouts are most of a short run)
+    train = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(out), "--no-progress",
+             "--set", "validation_weights=0", "--set", "prune=false"]  # fmt: skip
     budget = ["--steps-per-iteration", "150", "--set", "n_test_weights=2"]
     assert subprocess.run([*train, *budget, "--iterations", "1"], capture_output=True).returncode == 0
     filler = small_disk / "filler"
