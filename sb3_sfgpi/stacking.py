@@ -141,7 +141,7 @@ class WithoutOne:
 
     def __init__(self, stacked: Stacked, member: int):
         self.stacked, self.member = stacked, member
-        self.tabular: bool = isinstance(stacked, StackedTables) or (isinstance(stacked, WithoutOne) and stacked.tabular)
+        self.tabular: bool = numpy_tables(stacked)
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         psi = self.stacked.psi(obs_tensor)
