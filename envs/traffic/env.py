@@ -239,7 +239,6 @@ class TrafficSignalEnv(ParallelEnv):
         action_mode = defaults["action_mode"] if action_mode is None else action_mode
         objectives = defaults["objectives"] if objectives is None else objectives
         self.mdp = mdp
-        self._observation_fn = defaults.get("observation_fn") if observation_fn is None else observation_fn
         _check_choice("render_mode", render_mode, (None, "human"))
         _check_choice("signal_control", signal_control, SIGNAL_CONTROLS)
         _check_choice("early_change", early_change, EARLY_CHANGES)
@@ -260,7 +259,7 @@ class TrafficSignalEnv(ParallelEnv):
         self._set_files(net_file, route_file, actuated_file, additional_files)
         self.sumo_args = tuple(str(a) for a in sumo_args)
         self.sumo_warnings = sumo_warnings
-        self._set_intersections()
+        self._set_intersections(defaults.get("observation_fn") if observation_fn is None else observation_fn)
         self._sim = SumoSimulation(self.backend, self.gui)  # checks that SUMO is installed; starts nothing
         self._seed = seed
         self._rng = np.random.default_rng(seed)
@@ -309,7 +308,7 @@ class TrafficSignalEnv(ParallelEnv):
                 raise FileNotFoundError(f"additional file {f} does not exist")
         self.additional_files = tuple(extra)
 
-    def _set_intersections(self) -> None:
+    def _set_intersections(self, observation_fn: ObservationFunction | str | None) -> None:
         """The agents (traffic lights with two green phases or more), their programs, controllers and spaces."""
         self.layouts: dict[str, IntersectionLayout] = {
             tid: lay for tid, lay in read_network(self.net_file).items() if sum(map(is_green, dict(lay.phases))) > 1
@@ -323,7 +322,7 @@ class TrafficSignalEnv(ParallelEnv):
         self.possible_agents: list[str] = list(self.layouts)
         self.agents: list[str] = []
         n_greens = {a: len(self._programs[a].greens) for a in self.possible_agents}
-        self.observation_fn = _observation_fn(self._observation_fn, [(self.layouts[a], n_greens[a]) for a in n_greens])
+        self.observation_fn = _observation_fn(observation_fn, [(self.layouts[a], n_greens[a]) for a in n_greens])
         self.observation_spaces = {
             a: spaces.Box(0.0, 1.0, shape=(n_greens[a] + 1 + 2 * lay.n_lanes,), dtype=np.float32)
             if self.observation_fn is None

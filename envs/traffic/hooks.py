@@ -58,10 +58,20 @@ class LightView:
     time: int
     sumo: Any
 
+    @property
+    def tau(self) -> float:
+        """The elapsed green over ``max_green``, at most 1."""
+        return min(1.0, self.green_time / self.max_green)
+
+    def green_one_hot(self, size: int) -> list[float]:
+        """The green shown as a one-hot list of ``size`` (at least ``n_greens``) entries."""
+        one_hot = [0.0] * size
+        one_hot[self.green] = 1.0
+        return one_hot
+
     def default_observation(self) -> np.ndarray:
         """The env's own observation (Eq. 22): green one-hot, elapsed green over ``max_green``, densities, queues."""
-        vec = [0.0] * self.n_greens + [min(1.0, self.green_time / self.max_green)]
-        vec[self.green] = 1.0
+        vec = self.green_one_hot(self.n_greens) + [self.tau]
         return np.array(vec + list(self.densities) + list(self.queues), dtype=np.float32)
 
 
@@ -89,10 +99,9 @@ class SumoRLObservation:
 
     def __call__(self, light: LightView) -> np.ndarray:
         n = len(light.layout.vehicle_lanes)
-        phase = [0.0] * light.n_greens
-        phase[light.green] = 1.0
         may_change = [1.0 if light.green_time >= light.min_green else 0.0]
-        return np.array(phase + may_change + list(light.densities[:n]) + list(light.queues[:n]), dtype=np.float32)
+        lanes = list(light.densities[:n]) + list(light.queues[:n])
+        return np.array(light.green_one_hot(light.n_greens) + may_change + lanes, dtype=np.float32)
 
 
 def check_picklable(value: Any, what: str) -> None:
@@ -154,12 +163,11 @@ class PaddedObservation:
 
     def __call__(self, light: LightView) -> np.ndarray:
         n_vehicle = len(light.layout.vehicle_lanes)
-        green = _padded([1.0 if g == light.green else 0.0 for g in range(light.n_greens)], self.max_greens)
-        tau = [min(1.0, light.green_time / light.max_green)]
         vehicles = _group(light.densities[:n_vehicle], light.queues[:n_vehicle], self.max_vehicle_lanes)
         pedestrians = _group(light.densities[n_vehicle:], light.queues[n_vehicle:], self.max_pedestrian_edges)
         exists = _padded([1.0] * light.n_greens, self.max_greens)
-        return np.array(green + exists + tau + vehicles + pedestrians, dtype=np.float32)
+        green = light.green_one_hot(self.max_greens)
+        return np.array(green + exists + [light.tau] + vehicles + pedestrians, dtype=np.float32)
 
 
 def _padded(values: Sequence[float], size: int) -> list[float]:
