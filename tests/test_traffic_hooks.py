@@ -106,6 +106,14 @@ def test_hooks_pickle_for_the_workers_and_unpicklable_ones_are_refused():
         TrafficSignalEnv(mdp="resco")
 
 
+def test_a_users_objective_is_scaled_by_its_name():
+    objectives = ["vehicle_waiting", Objective("speed", "mean speed [m/s]", mean_speed)]
+    env = TrafficSignalEnv(objectives=objectives, reward_scale={"speed": 0.5, "co2": 0.1})
+    np.testing.assert_array_equal(env.reward_scale, [1.0, 0.5])
+    with pytest.raises(ValueError, match="unknown objective 'sped'"):
+        TrafficSignalEnv(objectives=objectives, reward_scale={"sped": 0.5})
+
+
 def test_the_sumo_rl_switch_gives_its_defaults_and_its_observation():
     env = TrafficSignalEnv(num_seconds=SECONDS, mdp="sumo-rl", seed=0)
     assert (env.yellow_time, env.min_green, env.max_green, env.delta_time) == (2, 5, 50, 5)

@@ -137,15 +137,20 @@ def reward_scales(scale: Any, names: Sequence[str]) -> np.ndarray:
     """One positive finite factor per objective.
 
     :param scale: one number for all, one per objective (in order), or a mapping name -> factor (objectives it
-        does not name keep 1; names of the menu that are not selected are ignored).
+        does not name keep 1; names of the menu that are not selected are ignored; a user's objective is named as
+        its ``Objective``).
     :param names: the selected objectives' names.
     :return: the factors, float64 of shape ``(len(names),)``.
-    :raises ValueError: a factor that is not a positive finite number, a wrong length, an unknown name.
+    :raises ValueError: a factor that is not a positive finite number, a wrong length, a name neither on the menu
+        nor selected.
     """
     if isinstance(scale, Mapping):
-        unknown = [k for k in scale if k not in MENU]
+        unknown = [k for k in scale if k not in MENU and k not in names]
         if unknown:
-            raise ValueError(f"reward_scale names an unknown objective {unknown[0]!r}; the menu: {', '.join(MENU)}")
+            raise ValueError(
+                f"reward_scale names an unknown objective {unknown[0]!r}; the menu: {', '.join(MENU)}, and the "
+                f"selected: {', '.join(names)}"
+            )
         bad = [k for k, v in scale.items() if not _positive_finite(v)]  # every factor given, selected or not
         if bad:
             raise ValueError(f"reward_scale of {bad[0]!r} must be a positive finite number, got {scale[bad[0]]!r}")
