@@ -24,10 +24,10 @@ previous manifest or has none. Loading never runs code from the directory.
 from __future__ import annotations
 
 import copy
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
@@ -36,6 +36,7 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.utils import is_vectorized_observation
 from torch import nn
 
+from sb3_sfgpi.common.action_masks import checked_masks, masked
 from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.rollouts import JointPolicy
@@ -48,7 +49,20 @@ from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 from sb3_sfgpi.stacking import Stacked, StackedVmap, WithoutOne, numpy_tables, stack_networks
 
-__all__ = ["MANIFEST", "CorruptPolicySetError", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
+__all__ = ["MANIFEST", "CorruptPolicySetError", "Decisions", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
+
+
+class Decisions(NamedTuple):
+    """One joint decision of agents acting by GPI (:meth:`GPIPolicy.joint_policy`'s ``trace``)."""
+
+    #: the agents' observations, stacked
+    observations: np.ndarray
+    #: their action masks, or None where the env gives none
+    masks: np.ndarray | None
+    #: GPI's actions
+    actions: np.ndarray
+    #: per agent, the members that attained GPI's value of its action (:meth:`GPIPolicy.predict_followed`)
+    followed: list[frozenset[int]]
 
 
 class GPIPolicy:
@@ -269,7 +283,7 @@ class GPIPolicy:
         self,
         w: np.ndarray | Sequence[float],
         agents: Sequence[str] | None = None,
-        trace: list[tuple[np.ndarray, np.ndarray, list[frozenset[int]]]] | None = None,
+        trace: list[Decisions] | None = None,
     ) -> JointPolicy:
         """
         The joint policy of agents acting by GPI for the preference ``w``.
@@ -278,7 +292,8 @@ class GPIPolicy:
         :param agents: None: every agent acts by GPI over the whole set (one batched call per step); the agents'
             names: each of them acts by GPI over the policies it learned itself (:meth:`agent_policies`)
         :param trace: where given (``agents`` None), every decision appends to it the agents' observations, their
-            actions and the members GPI followed for each (:meth:`predict_followed`); the actions are the same
+            action masks (None without), their actions and the members GPI followed for each
+            (:meth:`predict_followed`); the actions are the same
         :raises ValueError: bad weights; an agent without policies in the set; ``trace`` with ``agents``
         """
         self._validated_weights(w)
@@ -286,17 +301,21 @@ class GPIPolicy:
             raise ValueError("decisions are traced where every agent acts by GPI over the whole set")
         own = None if agents is None else {agent: self.agent_policies(agent) for agent in agents}
 
-        def act(observations: dict[str, Any]) -> dict[str, int]:
+        def act(observations: dict[str, Any], action_masks: Mapping[str, Any] | None = None) -> dict[str, int]:
             names = list(observations)
+            masks = None if action_masks is None else np.stack([action_masks[a] for a in names])
             if own is None:
                 batch = np.stack([observations[a] for a in names])
                 if trace is None:
-                    actions, _ = self.predict(batch, w)
+                    actions, _ = self.predict(batch, w, action_masks=masks)
                 else:
-                    actions, members = self.predict_followed(batch, w)
-                    trace.append((batch, actions, members))
+                    actions, members = self.predict_followed(batch, w, masks)
+                    trace.append(Decisions(batch, masks, actions, members))
                 return dict(zip(names, actions.tolist(), strict=True))
-            return {a: int(own[a].predict(observations[a], w)[0]) for a in names}
+            return {
+                a: int(own[a].predict(observations[a], w, action_masks=None if masks is None else masks[i])[0])
+                for i, a in enumerate(names)
+            }
 
         return act
 
@@ -390,7 +409,7 @@ class GPIPolicy:
             return weighted_sum(stacked.psi(obs_tensor), weights[1]).cpu().numpy()
 
     def predict_followed(
-        self, observation: np.ndarray, w: np.ndarray | Sequence[float]
+        self, observation: np.ndarray, w: np.ndarray | Sequence[float], action_masks: np.ndarray | None = None
     ) -> tuple[np.ndarray, list[frozenset[int]]]:
         """
         GPI actions of a batch, the same as :meth:`predict`'s, and for each observation the members GPI followed: those
@@ -402,11 +421,12 @@ class GPIPolicy:
 
         :param observation: a batch of observations
         :param w: preference weights of length ``d``
+        :param action_masks: the actions each observation has (see :meth:`predict`)
         :return: the actions, shape ``(batch,)``, and the members followed, one set of indices per observation
         """
         weights = self._validated_weights(w)
         obs, _ = self._obs_to_array(observation)
-        q = self._policy_q(obs, weights)
+        q = masked(self._policy_q(obs, weights), checked_masks(action_masks, len(obs), self.action_space.n))
         best = q.max(axis=0)
         actions = best.argmax(axis=1)
         rows = np.arange(len(actions))
@@ -420,21 +440,26 @@ class GPIPolicy:
         state: tuple[np.ndarray, ...] | None = None,
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
+        action_masks: np.ndarray | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """
-        GPI action ``argmax_a max_π w · ψ^π(s, a)`` (ties go to the first action), as SB3's ``predict``.
+        GPI action ``argmax_a max_π w · ψ^π(s, a)`` (ties go to the first action), as SB3's ``predict``, over the
+        actions ``action_masks`` allows.
 
         :param observation: one observation or a batch
         :param w: preference weights of length ``d``
         :param state: unused, returned as is
         :param episode_start: unused
         :param deterministic: GPI is deterministic; kept for SB3 compatibility
+        :param action_masks: the actions each observation has, 0/1 of shape ``(batch, n_actions)`` (the envs'
+            ``info["action_mask"]``, as sb3-contrib's maskable algorithms take them); None: every action
         :return: the actions (a scalar array for one observation) and ``state``
-        :raises ValueError: bad weights or an empty set
+        :raises ValueError: bad weights, bad masks or an empty set
         """
         weights = self._validated_weights(w)
         obs, vectorized = self._obs_to_array(observation)
-        actions = self._gpi_q(obs, weights).argmax(axis=1)
+        masks = checked_masks(action_masks, len(obs), self.action_space.n)
+        actions = masked(self._gpi_q(obs, weights), masks).argmax(axis=1)
         return (actions if vectorized else actions[0]), state
 
     def for_weights(self, w: np.ndarray | Sequence[float]) -> GPIPredictor:

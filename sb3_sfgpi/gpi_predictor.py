@@ -45,6 +45,7 @@ class GPIPredictor:
         state: tuple[np.ndarray, ...] | None = None,
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
+        action_masks: np.ndarray | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """
         The GPI action for ``w``, as SB3's ``predict`` (see :meth:`sb3_sfgpi.gpi.GPIPolicy.predict`).
@@ -53,9 +54,13 @@ class GPIPredictor:
         :param state: unused, returned as is
         :param episode_start: unused
         :param deterministic: GPI is deterministic; kept for SB3 compatibility
+        :param action_masks: the actions each observation has (0/1, one row per observation), as sb3-contrib's
+            maskable algorithms take them; None: every action
         :return: the actions (a scalar array for one observation) and ``state``
         """
-        return self.policy_set.predict(observation, self._weights, state, episode_start, deterministic)
+        return self.policy_set.predict(
+            observation, self._weights, state, episode_start, deterministic, action_masks=action_masks
+        )
 
     def __repr__(self) -> str:
         return f"GPIPredictor({len(self.policy_set)} policies, w={self._weights.tolist()})"

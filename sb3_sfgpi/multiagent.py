@@ -24,6 +24,7 @@ from stable_baselines3.common.type_aliases import MaybeCallback, TrainFrequencyU
 from stable_baselines3.common.vec_env import VecEnv
 from tqdm.auto import tqdm
 
+from sb3_sfgpi.common.action_masks import ACTION_MASK, info_mask, stacked_masks
 from sb3_sfgpi.common.agent_views import (
     AgentVecEnv,
     Rows,
@@ -141,6 +142,9 @@ class MultiAgentRunner:
             SingleCopy(env) if n_envs == 1 else EnvCopies(env_fn, env_kwargs or {}, n_envs)  # type: ignore[arg-type]
         )
         self._live: list[set[str]] = [set() for _ in range(n_envs)]  # per copy, the agents still in its episode
+        self._n_actions = int(env.action_space(self.agents[0]).n)  # type: ignore[attr-defined]
+        #: ``(copy, agent)`` -> the action mask of its last observation (None: every action)
+        self._masks: dict[tuple[int, str], np.ndarray | None] = {}
         self._episode_steps = [0] * n_envs
         self.learners: dict[str, SFDQN] = {}
         self._learner_callbacks: dict[str, BaseCallback] = {}
@@ -164,7 +168,7 @@ class MultiAgentRunner:
                         f"MA-SFOLS shares policies between agents: all agents need the same spaces, but the "
                         f"{kind.replace('_', ' ')} of {agent!r} is {getattr(env, kind)(agent)} and of {first!r} "
                         f"{getattr(env, kind)(first)}; pad them into one layout that means the same at every agent "
-                        "(TrafficSignalEnv: observation_fn='padded')"
+                        "(TrafficSignalEnv: observation_fn='padded'; Discrete actions: sb3_sfgpi.PadActions(env))"
                     )
         if not isinstance(env.action_space(first), spaces.Discrete):
             raise ValueError(f"SFDQN needs Discrete actions, got {env.action_space(first)}")
@@ -255,10 +259,11 @@ class MultiAgentRunner:
         copies = list(range(self.n_envs)) if copies is None else copies
         seeds = [seed if seed is None or copy == 0 else derive_seed(seed, "copy", copy) for copy in copies]
         observations = {}
-        for copy, (obs, agents) in zip(copies, self.copies.reset(seeds, copies), strict=True):
+        for copy, (obs, infos, agents) in zip(copies, self.copies.reset(seeds, copies), strict=True):
             check_parallel_reset(self.env, copy, obs, self.agents)  # known agents, finite observations
             self._live[copy], self._episode_steps[copy] = set(agents), 0
             observations.update({(copy, agent): obs[agent] for agent in obs})
+            self._note_masks(copy, infos)
         for name, slots in self.slots.items():
             rows = [i for i, key in enumerate(slots) if key in observations]
             batched = np.stack([np.asarray(observations[slots[i]]) for i in rows])
@@ -282,6 +287,7 @@ class MultiAgentRunner:
             live = [i for i, (copy, agent) in enumerate(slots) if agent in self._live[copy]]
             if live:
                 learner = self.learners[name]
+                learner._last_action_masks = self._slot_masks(slots)
                 action, buffer_action = learner._sample_action(learner.learning_starts, None, learner.n_envs)
                 for i in live:
                     copy, agent = slots[i]
@@ -297,6 +303,8 @@ class MultiAgentRunner:
             self._check_truncations(copy, returned[2], returned[3])
             for values, by_key in zip(returned, merged, strict=True):
                 by_key.update({(copy, agent): value for agent, value in values.items()})
+        for copy, (*_, infos, _agents) in enumerate(results):
+            self._note_masks(copy, infos)
         keep_going = True
         for name, (live, buffer_action) in sampled.items():
             keys = [self.slots[name][i] for i in live]
@@ -306,6 +314,16 @@ class MultiAgentRunner:
         if finished:
             self.reset_env(copies=finished)
         return keep_going
+
+    def _note_masks(self, copy: int, infos: Mapping[str, Mapping[str, Any]]) -> None:
+        """Keep the action masks (``info["action_mask"]``) of copy ``copy``'s agents' new observations."""
+        for agent, info in infos.items():
+            if self._masks or ACTION_MASK in info:  # nothing kept for an env that gives no masks
+                self._masks[(copy, agent)] = info_mask(info, self._n_actions, f"agent {agent!r}")
+
+    def _slot_masks(self, keys: list[tuple[int, str]]) -> np.ndarray | None:
+        """The masks of the ``(copy, agent)`` keys' last observations, shape ``(len(keys), n_actions)``, or None."""
+        return stacked_masks([self._masks.get(key) for key in keys], self._n_actions) if self._masks else None
 
     def _check_truncations(self, copy: int, terminations: dict[str, bool], truncations: dict[str, bool]) -> None:
         """Warn once where every agent is truncated before the env's declared time limit: swapped flags?"""
@@ -333,9 +351,10 @@ class MultiAgentRunner:
         dones = np.array([step.terminations[agent] or step.truncations[agent] for agent in step.agents])
         infos = [self._monitored_info(agent, step) for agent in step.agents]
         timeouts = np.array([info.get("TimeLimit.truncated", False) for info in infos])
+        next_masks = self._slot_masks(step.agents)
         last_obs = learner._last_obs
         learner._last_obs = next_obs if len(step.slots) == learner.n_envs else replaced(last_obs, step.slots, next_obs)
-        return Rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts), infos
+        return Rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts, next_masks), infos
 
     def _learner_step(self, name: str, rows: Rows, infos: list[dict[str, Any]]) -> bool:
         """
@@ -398,13 +417,14 @@ class MultiAgentRunner:
         """
         owner = {agent: name for name, agents in self.groups.items() for agent in agents}
 
-        def act(observations: dict[str, Any]) -> dict[str, int]:
+        def act(observations: dict[str, Any], action_masks: Mapping[str, Any] | None = None) -> dict[str, int]:
             chosen: dict[str, int] = {}
             for name in self.learner_names if learner is None else [learner]:
                 names = [a for a in observations if learner is not None or owner[a] == name]
                 if names:
                     batch = np.stack([observations[a] for a in names])
-                    actions, _ = self.learners[name].predict(batch, deterministic=True)
+                    masks = None if action_masks is None else np.stack([action_masks[a] for a in names])
+                    actions, _ = self.learners[name].predict(batch, deterministic=True, action_masks=masks)
                     chosen.update(zip(names, actions.tolist(), strict=True))
             return {agent: chosen[agent] for agent in observations}
 

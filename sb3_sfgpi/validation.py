@@ -22,11 +22,14 @@ import numpy as np
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.evaluation import Rollout, summarize_test_episodes
-from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.gpi import Decisions, GPIPolicy
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 
-#: One weight's episodes: the returns, the members followed, and the decisions (observations, actions).
-Run = tuple[EpisodeReturns, frozenset[frozenset[int]], tuple[np.ndarray, np.ndarray]]
+#: One weight's decisions, every agent, decision and episode in order: observations, action masks (None: the env
+#: gives none), actions.
+Decided = tuple[np.ndarray, np.ndarray | None, np.ndarray]
+#: One weight's episodes: the returns, the members followed, and the decisions.
+Run = tuple[EpisodeReturns, frozenset[frozenset[int]], Decided]
 
 
 @dataclass(frozen=True)
@@ -38,14 +41,14 @@ class Scored:
     :param returns: per weight, every agent's returns
     :param followed: per weight, the sets of members that attained GPI's value of an action taken (every agent,
         every decision, every episode), as indices into the set
-    :param decisions: per weight, the observations GPI acted on (every agent, decision and episode, in order) and
-        its actions
+    :param decisions: per weight, the observations GPI acted on (every agent, decision and episode, in order), their
+        action masks and its actions
     """
 
     score: float
     returns: tuple[EpisodeReturns, ...]
     followed: tuple[frozenset[frozenset[int]], ...]
-    decisions: tuple[tuple[np.ndarray, np.ndarray], ...]
+    decisions: tuple[Decided, ...]
 
     def decisive(self, member: int) -> list[int]:
         """
@@ -58,6 +61,15 @@ class Scored:
     def decisive_members(self) -> set[int]:
         """The members without which GPI acts otherwise at some weight (the others' removal changes nothing)."""
         return {m for sets in self.followed for members in sets if len(members) == 1 for m in members}
+
+
+def _masks_of(trace: Sequence[Decisions], n_actions: int) -> np.ndarray | None:
+    """The decisions' action masks in one array (rows without a mask allow every action), or None without masks."""
+    if all(step.masks is None for step in trace):
+        return None
+    return np.concatenate(
+        [np.ones((len(step.actions), n_actions), dtype=bool) if step.masks is None else step.masks for step in trace]
+    )
 
 
 def _without(sets: frozenset[frozenset[int]], member: int) -> frozenset[frozenset[int]]:
@@ -98,14 +110,13 @@ class ValidationScorer:
         if not isinstance(policy_set.networks[0], TabularSFNetwork):
             return self(policy_set)
         runs = []
-        for i, (returns, (observations, actions)) in enumerate(zip(scored.returns, scored.decisions, strict=True)):
+        for i, (returns, decided) in enumerate(zip(scored.returns, scored.decisions, strict=True)):
+            observations, masks, actions = decided
             again, members = (
-                policy_set.predict_followed(observations, self.weights[i]) if len(actions) else (actions, [])
+                policy_set.predict_followed(observations, self.weights[i], masks) if len(actions) else (actions, [])
             )
             same = np.array_equal(again, actions)
-            runs.append(
-                (returns, frozenset(members), (observations, actions)) if same else self._episodes(policy_set, i)
-            )
+            runs.append((returns, frozenset(members), decided) if same else self._episodes(policy_set, i))
         return self._scored(runs)
 
     def without(self, policy_set: GPIPolicy, scored: Scored, member: int) -> Scored:
@@ -124,15 +135,16 @@ class ValidationScorer:
         return self._scored(runs)
 
     def _episodes(self, policy_set: GPIPolicy, i: int) -> Run:
-        trace: list[tuple[np.ndarray, np.ndarray, list[frozenset[int]]]] = []
+        trace: list[Decisions] = []
         self.rollouts += 1
         policy = policy_set.joint_policy(self.weights[i], trace=trace)
         returns = self.rollout(policy, self.episodes, self.seeds[i])
         if not trace:  # no decision (episodes that end at reset)
-            return returns, frozenset(), (np.empty((0,)), np.empty((0,), dtype=np.int64))
-        observations = np.concatenate([batch for batch, _, _ in trace])
-        actions = np.concatenate([acted for _, acted, _ in trace])
-        return returns, frozenset(m for _, _, members in trace for m in members), (observations, actions)
+            return returns, frozenset(), (np.empty((0,)), None, np.empty((0,), dtype=np.int64))
+        observations = np.concatenate([step.observations for step in trace])
+        actions = np.concatenate([step.actions for step in trace])
+        followed = frozenset(m for step in trace for m in step.followed)
+        return returns, followed, (observations, _masks_of(trace, policy_set.action_space.n), actions)
 
     def _scored(self, runs: Sequence[Run]) -> Scored:
         returns = tuple(r for r, _, _ in runs)

@@ -56,7 +56,8 @@ def same_returns(a: Scored, b: Scored) -> bool:
 def same(a: Scored, b: Scored) -> bool:
     """The same score, returns, followed members and decisions, to the last bit."""
     decisions = all(
-        np.array_equal(x[0], y[0]) and np.array_equal(x[1], y[1]) for x, y in zip(a.decisions, b.decisions, strict=True)
+        all(np.array_equal(p, q) for p, q in zip(x, y, strict=True))  # observations, masks, actions
+        for x, y in zip(a.decisions, b.decisions, strict=True)
     )
     return same_returns(a, b) and a.followed == b.followed and decisions
 

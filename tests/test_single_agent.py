@@ -49,7 +49,7 @@ def test_scalar_reward_and_turn_based_envs_are_refused_in_one_line():
     with pytest.raises(ValueError, match="reward_space"):
         MASFOLS(gym.make("CartPole-v1"))
     moconnect4_v0 = pytest.importorskip("momaland.envs.connect4.moconnect4_v0")
-    with pytest.raises(ValueError, match=r"turn-based \(AEC\) env.*action masks"):
+    with pytest.raises(ValueError, match=r"turn-based \(AEC\) env.*takes turns"):
         MASFOLS(moconnect4_v0.env())
 
 

@@ -17,7 +17,7 @@ traci = pytest.importorskip("traci")
 
 from sfgpi_envs.traffic import TrafficSignalEnv, run_program_episode  # noqa: E402
 
-from sb3_sfgpi import MASFOLS  # noqa: E402
+from sb3_sfgpi import MASFOLS, EvaluationConfig  # noqa: E402
 from sb3_sfgpi.cli import main  # noqa: E402
 from sb3_sfgpi.gpi import GPIPolicy  # noqa: E402
 
@@ -203,6 +203,39 @@ def test_padded_observations_give_lights_that_differ_one_layout_and_masfols_trai
         masfols.learn(max_iterations=1)
         for agent, observation in padded.reset(seed=1)[0].items():
             assert masfols.policy_set.predict(observation, [0.5, 0.5])[0] in (0, 1), agent
+    finally:
+        masfols.close()
+
+
+def test_padded_phase_actions_are_masked_and_no_masked_green_is_ever_shown():
+    """
+    cologne3's lights have 3, 4 and 4 greens: padded, each chooses among 4 with ``info["action_mask"]``, and the env
+    refuses a green a light lacks, so training, value estimates and GPI's evaluation fail if one is ever chosen.
+    """
+    env = TrafficSignalEnv(**COLOGNE3, observation_fn="padded", action_mode="phase")
+    greens = {a: len(env._programs[a].greens) for a in env.possible_agents}
+    assert sorted(greens.values()) == [3, 4, 4]
+    assert all(env.action_space(a).n == 4 for a in env.possible_agents)
+    _, infos = env.reset(seed=0)
+    for agent, info in infos.items():
+        np.testing.assert_array_equal(info["action_mask"], np.arange(4) < greens[agent])
+    short = min(greens, key=greens.get)
+    with pytest.raises(ValueError, match="action mask forbids"):
+        env.step({a: 3 for a in env.possible_agents} | {short: 3})
+    learner = {"learning_starts": 5, "batch_size": 8, "buffer_size": 1000, "policy_kwargs": {"net_arch": [16]}}
+    masfols = MASFOLS(
+        env, policy="MlpPolicy", steps_per_iteration=40, learner_kwargs=learner, seed=0,
+        evaluation=EvaluationConfig([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]], episodes=1),
+    )  # fmt: skip
+    try:
+        masfols.learn(max_iterations=1)
+        assert len(masfols.policy_set) >= 1
+        observations, infos = env.reset(seed=1)
+        for w in ([1.0, 0.0], [0.0, 1.0]):
+            batch = np.stack([observations[a] for a in env.possible_agents])
+            masks = np.stack([infos[a]["action_mask"] for a in env.possible_agents])
+            actions, _ = masfols.policy_set.predict(batch, w, action_masks=masks)
+            assert masks[np.arange(3), actions].all()
     finally:
         masfols.close()
 

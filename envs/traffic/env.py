@@ -173,7 +173,9 @@ class TrafficSignalEnv(ParallelEnv):
         the ``mdp``'s.
     :param action_mode: ``"change"`` (keep/change) or ``"phase"`` (choose the green); None: the ``mdp``'s.
     :param observation_fn: None (Eq. 22 above), ``"padded"`` (one layout for lights that differ, every slot meaning
-        the same at every light: :class:`~.hooks.PaddedObservation`), or a user's picklable object with
+        the same at every light: :class:`~.hooks.PaddedObservation`; with ``action_mode="phase"`` every light also
+        gets ``Discrete(G)``, ``G`` the most greens of a light, and ``info["action_mask"]`` allows its own greens
+        only), or a user's picklable object with
         ``space(layout, n_greens)`` and ``__call__(view)`` (:class:`~.hooks.ObservationFunction`).
     :param signal_control: ``"agent"`` (actions drive the lights), ``"fixed-time"`` (SUMO's static
         program in the network), ``"actuated"`` (SUMO's gap-based actuated program: the static
@@ -329,9 +331,19 @@ class TrafficSignalEnv(ParallelEnv):
             else self.observation_fn.space(lay, n_greens[a])
             for a, lay in self.layouts.items()
         }
-        self.action_spaces = {
-            a: spaces.Discrete(2 if self.action_mode == "change" else n_greens[a]) for a in self.possible_agents
-        }
+        #: the greens a light has among the padded ``Discrete(G)`` (phase actions of padded lights), else None
+        self._action_masks = (
+            {a: np.arange(max(n_greens.values())) < n for a, n in n_greens.items()}
+            if self.action_mode == "phase" and isinstance(self.observation_fn, PaddedObservation)
+            else None
+        )
+        if self.action_mode == "change":
+            self.action_spaces = {a: spaces.Discrete(2) for a in self.possible_agents}
+        else:  # the green to show: a light's own, or padded to the most greens (masked)
+            padded = self._action_masks is not None
+            self.action_spaces = {
+                a: spaces.Discrete(max(n_greens.values()) if padded else n) for a, n in n_greens.items()
+            }
         d = len(self.objectives)
         self.reward_spaces = {
             a: spaces.Box(-np.inf, np.inf, shape=(d,), dtype=np.float32) for a in self.possible_agents
@@ -574,6 +586,11 @@ class TrafficSignalEnv(ParallelEnv):
         if k != act or not 0 <= k < n:
             meaning = "0 (keep) or 1 (change)" if self.action_mode == "change" else f"a green phase in 0..{n - 1}"
             raise ValueError(f"action of {agent} must be {meaning}, got {act!r}")
+        if self._action_masks is not None and not self._action_masks[agent][k]:
+            raise ValueError(
+                f"action of {agent} is green {k}, which its action mask forbids: it has only "
+                f"{self._action_masks[agent].sum()} greens (padded phase actions: act within info['action_mask'])"
+            )
         return k
 
     def _died(self, exc: BaseException) -> NoReturn:
@@ -628,6 +645,8 @@ class TrafficSignalEnv(ParallelEnv):
         }
         if "co2" in self.objective_names:
             info["co2_g"] = last.co2_mg / 1000.0
+        if self._action_masks is not None:
+            info["action_mask"] = self._action_masks[self.possible_agents[i]].astype(np.int8)
         return info
 
     def episode_metrics(self) -> dict[str, float]:

@@ -115,3 +115,4 @@ class Rows(NamedTuple):
     rewards: np.ndarray
     dones: np.ndarray
     timeouts: np.ndarray
+    next_masks: np.ndarray | None = None

@@ -8,14 +8,31 @@ vector rewards, either fails or (when sampling) flattens them silently into shap
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_sfgpi.common.action_masks import info_mask, stacked_masks
+
+#: A sampled batch as numpy arrays: observations, actions ``(B,)``, next observations, dones ``(B,)`` (truncations
+#: count as not done), rewards ``(B, d)``, and the next observations' action masks ``(B, n_actions)`` (None: every
+#: action exists).
+Arrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, "np.ndarray | None"]
+
+
+class MOReplayBufferSamples(NamedTuple):
+    """SB3's ``ReplayBufferSamples`` (rewards of shape ``(batch, d)``) with the next observations' action masks."""
+
+    observations: th.Tensor
+    actions: th.Tensor
+    next_observations: th.Tensor
+    dones: th.Tensor
+    rewards: th.Tensor
+    next_action_masks: th.Tensor | None = None
 
 
 class MOReplayBuffer(ReplayBuffer):
@@ -25,6 +42,10 @@ class MOReplayBuffer(ReplayBuffer):
     Time-limit truncations are stored apart from terminations (``handle_timeout_termination``) so that
     truncated transitions bootstrap. With ``optimize_memory_usage=True`` the next observation of a
     truncated transition is lost, so, as in SB3, truncations are then treated as terminations.
+
+    Where the env gives action masks (``info["action_mask"]``, :mod:`~sb3_sfgpi.common.action_masks`), the mask of
+    each next observation is stored with its transition, so that the TD target bootstraps only on allowed actions;
+    the storage is made when the first mask arrives (rows stored before count as allowing every action).
 
     :param buffer_size: Max number of transitions in the buffer
     :param observation_space: Observation space
@@ -62,6 +83,9 @@ class MOReplayBuffer(ReplayBuffer):
         self.reward_dim = reward_dim
         self.rewards = np.zeros((self.buffer_size, self.n_envs, reward_dim), dtype=np.float32)
         self._rows_at_pos = 0  # rows of the step at ``pos`` written by add_rows (it is sampled once complete)
+        #: True where a next observation's mask forbids the action, shape ``(buffer_size, n_envs, n_actions)``;
+        #: None while no mask was stored (zeros: untouched pages cost no memory)
+        self.next_forbidden: np.ndarray | None = None
 
     def add(
         self,
@@ -83,8 +107,22 @@ class MOReplayBuffer(ReplayBuffer):
                 f"MOReplayBuffer expects rewards of shape (n_envs, reward_dim) = {(self.n_envs, self.reward_dim)}, "
                 f"got {reward.shape}"
             )
+        masks = stacked_masks([info_mask(info, self._n_actions(), "the env") for info in infos], self._n_actions())
+        self._store_masks(slice(self.pos * self.n_envs, (self.pos + 1) * self.n_envs), masks)
         super().add(obs, next_obs, action, reward, done, infos)
         self._rows_at_pos = 0
+
+    def _n_actions(self) -> int:
+        return int(self.action_space.n)  # type: ignore[attr-defined]
+
+    def _store_masks(self, rows: slice | np.ndarray, masks: np.ndarray | None) -> None:
+        """Store the next observations' masks (None: every action) at the flat rows ``transition * n_envs + env``."""
+        if masks is None and self.next_forbidden is None:
+            return
+        n_actions = self._n_actions()
+        if self.next_forbidden is None:
+            self.next_forbidden = np.zeros((self.buffer_size, self.n_envs, n_actions), dtype=bool)
+        self.next_forbidden.reshape(-1, n_actions)[rows] = False if masks is None else ~masks
 
     def add_rows(
         self,
@@ -94,6 +132,7 @@ class MOReplayBuffer(ReplayBuffer):
         rewards: np.ndarray,
         dones: np.ndarray,
         timeouts: np.ndarray,
+        next_masks: np.ndarray | None = None,
     ) -> None:
         """
         Add ``k`` transitions (any ``k``, e.g. those of the agents still alive among the ``n_envs`` that share one
@@ -108,6 +147,7 @@ class MOReplayBuffer(ReplayBuffer):
         :param rewards: vector rewards, shape ``(k, reward_dim)``
         :param dones: whether each transition ended its episode, shape ``(k,)``
         :param timeouts: whether that end was a time-limit truncation, shape ``(k,)``
+        :param next_masks: the next observations' action masks, shape ``(k, n_actions)``, or None (every action)
         :raises ValueError: with ``optimize_memory_usage`` (its next observation is the same env's next row), or
             rewards of the wrong shape
         """
@@ -133,11 +173,12 @@ class MOReplayBuffer(ReplayBuffer):
                 storage[self.pos] = np.asarray(values).reshape(storage.shape[1:])
             else:  # the flat rows of a view of shape (buffer_size * n_envs, ...): the storage is contiguous
                 storage.reshape(capacity, *storage.shape[2:])[rows] = np.asarray(values).reshape(k, *storage.shape[2:])
+        self._store_masks(rows, next_masks)
         end = first + k
         self.full = self.full or end >= capacity
         self.pos, self._rows_at_pos = divmod(end % capacity, self.n_envs)
 
-    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> MOReplayBufferSamples:
         """
         Sample a batch of transitions as tensors; rewards have shape ``(batch_size, reward_dim)``.
 
@@ -146,16 +187,15 @@ class MOReplayBuffer(ReplayBuffer):
         """
         return self._get_samples(self._sample_indices(batch_size), env=env)
 
-    def sample_arrays(self, batch_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def sample_arrays(self, batch_size: int) -> Arrays:
         """
         Sample a batch as numpy arrays, without tensors (for numpy learners such as the tabular policy).
 
         :param batch_size: Number of transitions
-        :return: observations, actions ``(B,)``, next observations, dones ``(B,)`` (truncations count as
-            not done), rewards ``(B, d)``
+        :return: see :data:`Arrays`
         """
-        obs, actions, next_obs, dones, rewards = self._arrays(self._sample_indices(batch_size))
-        return obs, actions.reshape(-1), next_obs, dones, rewards
+        obs, actions, next_obs, dones, rewards, next_masks = self._arrays(self._sample_indices(batch_size))
+        return obs, actions.reshape(-1), next_obs, dones, rewards, next_masks
 
     def stored_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """
@@ -167,7 +207,7 @@ class MOReplayBuffer(ReplayBuffer):
         start, stop, shift = self._valid_positions()
         indices = (np.arange(start, stop) + shift) % self.buffer_size
         flat = (indices[:, None] * self.n_envs + np.arange(self.n_envs)).reshape(-1)
-        obs, actions, next_obs, dones, rewards = self._gather(flat)
+        obs, actions, next_obs, dones, rewards, _ = self._gather(flat)
         return obs, actions.reshape(-1), next_obs, dones, rewards
 
     def _valid_positions(self) -> tuple[int, int, int]:
@@ -182,7 +222,7 @@ class MOReplayBuffer(ReplayBuffer):
         indices = np.random.randint(start, stop, size=batch_size)
         return (indices + shift) % self.buffer_size if shift else indices  # without a shift, all in [0, buffer_size)
 
-    def _arrays(self, batch_inds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _arrays(self, batch_inds: np.ndarray) -> Arrays:
         # Each array is read as (buffer_size * n_envs, ...) at the flat rows ``transition * n_envs + env``: one
         # ``take`` per array is several times cheaper than indexing with two index arrays, for the same elements.
         if self.n_envs == 1:
@@ -191,8 +231,8 @@ class MOReplayBuffer(ReplayBuffer):
         env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
         return self._gather(batch_inds * self.n_envs + env_indices)
 
-    def _gather(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The transitions at the flat rows ``transition * n_envs + env``; dones of shape ``(B,)``."""
+    def _gather(self, flat: np.ndarray) -> Arrays:
+        """The transitions at the flat rows ``transition * n_envs + env`` (:data:`Arrays`, actions not flattened)."""
         # With one array for obs and next obs, the next observation is the same env's one step later.
         next_flat = (flat + self.n_envs) % (self.buffer_size * self.n_envs) if self.optimize_memory_usage else flat
         next_source = self.observations if self.optimize_memory_usage else self.next_observations
@@ -204,16 +244,19 @@ class MOReplayBuffer(ReplayBuffer):
             # A time-limit truncation is not a termination: it bootstraps.
             dones * (1 - timeouts),
             _rows(self.rewards, flat),
+            None if self.next_forbidden is None else ~_rows(self.next_forbidden, flat),  # stored with the transition
         )
 
-    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> MOReplayBufferSamples:
         if env is not None and env.norm_reward:
             raise ValueError(
                 "Reward normalisation (VecNormalize(norm_reward=True)) is not supported for vector rewards"
             )
-        obs, actions, next_obs, dones, rewards = self._arrays(batch_inds)
+        obs, actions, next_obs, dones, rewards, next_masks = self._arrays(batch_inds)
         data = (self._normalize_obs(obs, env), actions, self._normalize_obs(next_obs, env), dones[:, None], rewards)
-        return ReplayBufferSamples(*tuple(map(self.to_torch, data)))
+        return MOReplayBufferSamples(
+            *map(self.to_torch, data), next_action_masks=None if next_masks is None else self.to_torch(next_masks)
+        )
 
 
 def _rows(array: np.ndarray, flat: np.ndarray) -> np.ndarray:

@@ -18,6 +18,8 @@ from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
 
 #: What a copy returns for a step: observations, rewards, terminations, truncations, infos, agents still in it.
 StepResult = tuple[dict, dict, dict, dict, dict, list[str]]
+#: What a copy returns for a reset: observations, infos, agents in it.
+ResetResult = tuple[dict, dict, list[str]]
 
 
 def _serve(pipe: Any, env_fn: Callable[..., Any], env_kwargs: Mapping[str, Any]) -> None:
@@ -30,8 +32,8 @@ def _serve(pipe: Any, env_fn: Callable[..., Any], env_kwargs: Mapping[str, Any])
                 break
             try:
                 if command == "reset":
-                    observations, _ = env.reset(seed=data)
-                    pipe.send(("ok", (observations, list(env.agents))))
+                    observations, infos = env.reset(seed=data)
+                    pipe.send(("ok", (observations, infos, list(env.agents))))
                 else:
                     pipe.send(("ok", (*env.step(data), list(env.agents))))
             except Exception as error:  # the simulator failed: the main process raises it
@@ -53,9 +55,9 @@ class SingleCopy:
     def __len__(self) -> int:
         return 1
 
-    def reset(self, seeds: Sequence[int | None], copies: Sequence[int] | None = None) -> list[tuple[dict, list[str]]]:
-        observations, _ = self.env.reset(seed=seeds[0])
-        return [(observations, list(self.env.agents))]
+    def reset(self, seeds: Sequence[int | None], copies: Sequence[int] | None = None) -> list[ResetResult]:
+        observations, infos = self.env.reset(seed=seeds[0])
+        return [(observations, infos, list(self.env.agents))]
 
     def step(self, actions: Sequence[dict[str, Any]]) -> list[StepResult]:
         return [(*self.env.step(actions[0]), list(self.env.agents))]
@@ -87,11 +89,11 @@ class EnvCopies:
     def __len__(self) -> int:
         return len(self._pipes)
 
-    def reset(self, seeds: Sequence[int | None], copies: Sequence[int] | None = None) -> list[tuple[dict, list[str]]]:
+    def reset(self, seeds: Sequence[int | None], copies: Sequence[int] | None = None) -> list[ResetResult]:
         """
         Reset ``copies`` (default: all) with ``seeds`` (one each).
 
-        :return: per copy, its observations and agents
+        :return: per copy, its observations, infos and agents
         """
         copies = range(len(self)) if copies is None else copies
         return self._ask([(copy, ("reset", seed)) for copy, seed in zip(copies, seeds, strict=True)])

@@ -5,10 +5,12 @@ from __future__ import annotations
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 from gymnasium import spaces
 from pettingzoo import AECEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
+from sb3_sfgpi.common.action_masks import ACTION_MASK, info_mask
 from sb3_sfgpi.common.single_agent import SingleAgentParallelEnv
 
 #: Observation spaces SB3's replay buffers and policies take as they are.
@@ -62,12 +64,61 @@ def as_parallel_env(env: Any) -> Any:
         env = SingleAgentParallelEnv(env)
     elif isinstance(env, AECEnv):
         raise ValueError(
-            f"{env} is a turn-based (AEC) env: MA-SFOLS trains agents that act together in a ParallelEnv, and "
-            "turn-based games need action masks, which SFDQN does not take (docs: environments, MOMAland)"
+            f"{env} is a turn-based (AEC) env: MA-SFOLS steps agents that act together in a ParallelEnv and has no "
+            "runner that takes turns; use the game's parallel version where it has one (docs: environments, MOMAland)"
         )
     elif not hasattr(env, "possible_agents"):
         raise ValueError(f"{env!r} is neither a PettingZoo ParallelEnv nor a Gymnasium env")
     return FlattenObservations(env) if needs_flattening(env) else env
+
+
+class PadActions(BaseParallelWrapper):
+    """
+    Agents whose ``Discrete`` action spaces differ (in size or ``start``) given one ``Discrete(n)``, ``n`` the largest,
+    with action masks: an agent's action ``i`` is its own ``start + i``, and ``info["action_mask"]`` allows its own
+    ``n`` actions only (and, where the env gives masks of its own, only those of them). Learners and GPI act within the
+    masks (:mod:`~sb3_sfgpi.common.action_masks`); an action a mask forbids is refused. ``reward_space`` and the env's
+    other attributes pass through. E.g. MOMAland's gem mining (``Discrete(3, start=1)`` beside ``Discrete(4)``):
+    ``MASFOLS(PadActions(mogem_mining_v0.parallel_env()), ...)``.
+
+    :raises ValueError: an agent whose action space is not ``Discrete``
+    """
+
+    def __init__(self, env: Any):
+        super().__init__(env)
+        self._own: dict[str, spaces.Discrete] = {}
+        for agent in env.possible_agents:
+            space = env.action_space(agent)
+            if not isinstance(space, spaces.Discrete):
+                raise ValueError(f"PadActions pads Discrete action spaces; {agent!r} has {space}")
+            self._own[agent] = space
+        self._space = spaces.Discrete(max(int(space.n) for space in self._own.values()))
+
+    def action_space(self, agent: str) -> spaces.Discrete:
+        return self._space
+
+    def _masked(self, infos: dict[str, Any]) -> dict[str, Any]:
+        masked_infos = {}
+        for agent, info in infos.items():
+            mask = np.zeros(self._space.n, dtype=np.int8)
+            own = info_mask(info, int(self._own[agent].n), f"agent {agent!r}")
+            mask[: self._own[agent].n] = 1 if own is None else own
+            masked_infos[agent] = {**info, ACTION_MASK: mask}
+        return masked_infos
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+        observations, infos = self.env.reset(seed=seed, options=options)
+        return observations, self._masked(infos)
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
+        own_actions = {}
+        for agent, action in actions.items():
+            space = self._own[agent]
+            if not 0 <= int(action) < space.n:
+                raise ValueError(f"action {action} of {agent!r} is a padded one (it has {space.n} actions)")
+            own_actions[agent] = int(space.start) + int(action)
+        observations, rewards, terminations, truncations, infos = self.env.step(own_actions)
+        return observations, rewards, terminations, truncations, self._masked(infos)
 
 
 class SwapTerminationsTruncations(BaseParallelWrapper):

@@ -10,10 +10,13 @@ from typing import Any
 import numpy as np
 from pettingzoo import ParallelEnv
 
+from sb3_sfgpi.common.action_masks import ACTION_MASK, info_mask
 from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
 
-#: Maps the observations of the live agents to their actions.
-JointPolicy = Callable[[dict[str, Any]], dict[str, Any]]
+#: Maps the observations of the live agents to their actions: ``policy(observations)``, or, where the env gives
+#: action masks (:mod:`~sb3_sfgpi.common.action_masks`), ``policy(observations, action_masks=masks)`` with the live
+#: agents' masks (every action allowed for an agent whose info has none).
+JointPolicy = Callable[..., dict[str, Any]]
 
 
 @dataclass
@@ -60,7 +63,8 @@ def run_episodes(
     Run full episodes of a PettingZoo ParallelEnv with vector rewards and collect each agent's returns.
 
     :param env: the env (it is reset, once per episode)
-    :param policy: maps the live agents' observations to their actions
+    :param policy: maps the live agents' observations to their actions (and their action masks, where the env
+        gives any: :data:`JointPolicy`)
     :param n_episodes: number of episodes
     :param gamma: discount factor of the discounted returns
     :param seed: seed of the first reset (episode ``i`` uses ``seed + i``)
@@ -87,7 +91,9 @@ def run_episodes(
         step = 0
         while env.agents:
             live = list(env.agents)
-            actions = policy({agent: obs[agent] for agent in live})
+            masks = _live_masks(env, live, infos)
+            observations = {agent: obs[agent] for agent in live}
+            actions = policy(observations) if masks is None else policy(observations, action_masks=masks)
             obs, rewards, terminations, truncations, infos = env.step(actions)
             step += 1
             check_parallel_step(env, 0, live, (obs, rewards, terminations, truncations), env.agents, step)
@@ -110,6 +116,18 @@ def run_episodes(
         final_infos,
         step_infos,
     )
+
+
+def _live_masks(
+    env: ParallelEnv, live: list[str], infos: Mapping[str, Mapping[str, Any]]
+) -> dict[str, np.ndarray] | None:
+    """The live agents' action masks from their last infos, or None where no agent has one."""
+    if not any(ACTION_MASK in infos.get(agent, ()) for agent in live):
+        return None
+    masks = {agent: info_mask(infos.get(agent, {}), env.action_space(agent).n, f"agent {agent!r}") for agent in live}
+    return {
+        agent: np.ones(env.action_space(agent).n, dtype=bool) if mask is None else mask for agent, mask in masks.items()
+    }
 
 
 def _record_step(trace: dict[str, dict[str, list[float]]], infos: Mapping[str, Mapping[str, Any]]) -> None:

@@ -16,6 +16,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.common.type_aliases import PyTorchObs
 from torch import nn
 
+from sb3_sfgpi.common.action_masks import masked
 from sb3_sfgpi.common.weights import weighted_sum
 
 #: Largest table :class:`TabularSFNetwork` builds (number of observation values).
@@ -34,18 +35,25 @@ def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
     return weighted_sum(psi, weights.reshape(-1, 1, psi.shape[-1]))
 
 
-def greedy_actions(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
+def greedy_actions(psi: th.Tensor, weights: th.Tensor, masks: th.Tensor | None = None) -> th.Tensor:
     """
     ``argmax_a w · ψ(s, a)`` (ties, exactly equal :func:`scalarize` values, go to the first action).
 
     :param psi: successor features, shape ``(batch, n_actions, d)``
     :param weights: shape ``(d,)`` or ``(batch, d)``
+    :param masks: where given, True for the actions each state has, shape ``(batch, n_actions)``: the argmax is over
+        those only
     :return: actions, shape ``(batch,)``
     """
-    return scalarize(psi, weights).argmax(dim=1)
+    q_values = scalarize(psi, weights)
+    if masks is not None:
+        q_values = q_values.masked_fill(~masks, -th.inf)
+    return q_values.argmax(dim=1)
 
 
-def greedy_entries(entries: np.ndarray, first: np.ndarray, n_actions: int, weights: np.ndarray) -> np.ndarray:
+def greedy_entries(
+    entries: np.ndarray, first: np.ndarray, n_actions: int, weights: np.ndarray, masks: np.ndarray | None = None
+) -> np.ndarray:
     """
     ``s * n_actions + argmax_a w · ψ(s, a)`` read from a table seen as one row per ``(state, action)``.
 
@@ -53,11 +61,12 @@ def greedy_entries(entries: np.ndarray, first: np.ndarray, n_actions: int, weigh
     :param first: ``s * n_actions`` of each state, shape ``(batch,)``
     :param n_actions: number of actions
     :param weights: ``w``, shape ``(d,)``
+    :param masks: where given, True for the actions each state has, shape ``(batch, n_actions)``
     :return: the row of each state's greedy action (ties, exactly equal
         :func:`~sb3_sfgpi.common.weights.weighted_sum` values, go to the first), shape ``(batch,)``
     """
     psi = entries.reshape(-1, n_actions, entries.shape[1])[first // n_actions]  # one index per state, not per entry
-    return first + weighted_sum(psi, weights).argmax(axis=1)
+    return first + masked(weighted_sum(psi, weights), masks).argmax(axis=1)
 
 
 def argmax_random_ties(q_values: np.ndarray, rng: np.random.Generator | Any = np.random) -> np.ndarray:

@@ -153,8 +153,9 @@ class SFDQNPolicy(BasePolicy):
     ) -> float:
         """
         One gradient step on a sampled batch, towards ``r + γ (1 − terminated) ψ_target(s', a*)`` with
-        ``a* = argmax_a w · ψ(s', a)`` (online network picks, target network evaluates), Huber loss averaged
-        over batch and objectives, gradient norm clipped.
+        ``a* = argmax_a w · ψ(s', a)`` over the actions ``s'`` has (its action mask, where the env gives one; online
+        network picks, target network evaluates), Huber loss averaged over batch and objectives, gradient norm
+        clipped.
 
         :param replay_buffer: where to sample from
         :param batch_size: number of transitions
@@ -167,7 +168,7 @@ class SFDQNPolicy(BasePolicy):
         rows = th.arange(batch_size, device=batch.rewards.device)
         with th.no_grad():
             next_online = self.sf_net(batch.next_observations)
-            next_actions = greedy_actions(next_online, self.weights)
+            next_actions = greedy_actions(next_online, self.weights, batch.next_action_masks)
             next_psi = next_online if self.sf_net_target is self.sf_net else self.sf_net_target(batch.next_observations)
             target_psi = batch.rewards + (1 - batch.dones) * gamma * next_psi[rows, next_actions]
         current_psi = self.sf_net(batch.observations)[rows, batch.actions.long().flatten()]
@@ -336,6 +337,10 @@ class TabularPolicy(SFDQNPolicy):
             each component (0: what a fresh table holds), so that the sweeps back up no other value for them
         :return: the number of sweeps done
         """
+        if replay_buffer.next_forbidden is not None:
+            raise ValueError(
+                "planning does not take action masks (the env gives info['action_mask']): use planning_sweeps=0"
+            )
         model = self.experience(replay_buffer).model()
         return self._planned(
             plan_table(self.sf_net.entries(), model, self.weights.numpy(), gamma, max_sweeps, untried_value)
@@ -370,9 +375,9 @@ class TabularPolicy(SFDQNPolicy):
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
         net, target_net = self.sf_net, self.sf_net_target
         entries, n_actions = net.entries(), net.n_actions
-        obs, actions, next_obs, dones, rewards = replay_buffer.sample_arrays(batch_size)
+        obs, actions, next_obs, dones, rewards, next_masks = replay_buffer.sample_arrays(batch_size)
         next_flat = greedy_entries(
-            entries, net.rows(next_obs, check=False) * n_actions, n_actions, self.weights.numpy()
+            entries, net.rows(next_obs, check=False) * n_actions, n_actions, self.weights.numpy(), next_masks
         )
         next_entries = target_net.entries() if target_net is not net else entries
         target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_entries[next_flat]

@@ -15,6 +15,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import LinearSchedule, polyak_update, safe_mean
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_sfgpi.common.action_masks import ACTION_MASK, checked_masks, info_mask, masked, sample_allowed, stacked_masks
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.checks import check_finite, env_name
 from sb3_sfgpi.common.device import resolve_device
@@ -188,6 +189,8 @@ class SFDQN(OffPolicyAlgorithm):
         self.optimistic_init = optimistic_init if isinstance(optimistic_init, str) else float(optimistic_init)
         self._plannings = 0  # plannings done: one each time num_timesteps passes a multiple of planning_interval
         self.exploration_rate = 0.0
+        #: the action masks of ``_last_obs`` (``info["action_mask"]``), shape ``(n_envs, n_actions)``; None: all actions
+        self._last_action_masks: np.ndarray | None = None
         if self.env is not None:
             self.reward_dim = vec_env_reward_dim(self.env)
             self._weights = validate_weights(
@@ -255,7 +258,15 @@ class SFDQN(OffPolicyAlgorithm):
     ) -> tuple[int, BaseCallback]:
         if reset_num_timesteps:
             self._plannings = 0
-        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+        result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+        if reset_num_timesteps or self._last_action_masks is None:
+            self._last_action_masks = self._masks_of(getattr(self.env, "reset_infos", []))
+        return result
+
+    def _masks_of(self, infos: list[dict[str, Any]]) -> np.ndarray | None:
+        """The action masks the envs' infos carry, shape ``(n_envs, n_actions)``, or None where none has one."""
+        n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
+        return stacked_masks([info_mask(info, n_actions, f"env {i}") for i, info in enumerate(infos)], n_actions)
 
     def _on_step(self) -> None:
         """Update the exploration rate and, every ``target_update_interval`` steps, the target network."""
@@ -291,9 +302,10 @@ class SFDQN(OffPolicyAlgorithm):
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
         w: np.ndarray | list[float] | None = None,
+        action_masks: np.ndarray | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """
-        ε-greedy action in ``w · ψ(s, ·)`` (greedy if ``deterministic``).
+        ε-greedy action in ``w · ψ(s, ·)`` (greedy if ``deterministic``), among the actions ``action_masks`` allows.
 
         In a batch (several envs, or the agents sharing a learner) each row explores with probability ε on its own;
         SB3's DQN draws once for the whole batch.
@@ -307,26 +319,46 @@ class SFDQN(OffPolicyAlgorithm):
         :param episode_start: unused
         :param deterministic: act greedily, without exploration
         :param w: weights to act for in this call only; ``None`` for the model's weights
+        :param action_masks: the actions each observation has, 0/1 of shape ``(batch, n_actions)`` (the envs'
+            ``info["action_mask"]``, as sb3-contrib's maskable algorithms take them); None: every action
         :return: the actions and ``state``
         """
         # Validate w and the observation first: an exploratory action must not hide bad input.
         weights = self._weights if w is None else validate_weights(w, self.reward_dim)
         if not isinstance(observation, dict):
             observation = numeric_array(observation)
-        if deterministic:
+        if deterministic and action_masks is None:
             actions, vectorized = self.policy.greedy(observation, weights, random_ties=False)
             return (actions if vectorized else actions[0]), state
         vectorized = self.policy.is_vectorized_observation(observation)
         n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
+        masks = checked_masks(action_masks, n_batch, int(self.action_space.n))  # type: ignore[attr-defined]
+        if deterministic:
+            actions = masked(self.policy.q_values(observation, weights)[0], masks).argmax(axis=1)
+            return (actions if vectorized else actions[0]), state
         explore = np.random.rand(n_batch) < self.exploration_rate  # each env (or agent) on its own
+        rows = [None] * n_batch if masks is None else list(masks)
         if explore.all():
-            actions = np.array([self.action_space.sample() for _ in range(n_batch)])
+            actions = np.array([sample_allowed(self.action_space, rows[i]) for i in range(n_batch)])
         else:
             q_values, _ = self.policy.q_values(observation, weights)
-            actions = argmax_random_ties(q_values)
+            actions = argmax_random_ties(masked(q_values, masks))
             for i in np.flatnonzero(explore):
-                actions[i] = self.action_space.sample()
+                actions[i] = sample_allowed(self.action_space, rows[i])
         return (actions if vectorized else actions[0]), state
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """SB3's behaviour action (uniform before ``learning_starts``, then :meth:`predict`), within the last masks."""
+        masks = self._last_action_masks
+        if masks is None:
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        if self.num_timesteps < learning_starts:
+            actions = np.array([sample_allowed(self.action_space, mask) for mask in masks])
+        else:
+            actions, _ = self.predict(self._last_obs, deterministic=False, action_masks=masks)  # type: ignore[arg-type]
+        return actions, actions
 
     def _store_transition(
         self,
@@ -344,6 +376,7 @@ class SFDQN(OffPolicyAlgorithm):
         episode's terminal observation replaces the first observation of the next one.
         """
         self._check_transition(new_obs, reward)
+        self._last_action_masks = self._next_masks(infos, dones)
         if self._vec_normalize_env is not None or not isinstance(new_obs, np.ndarray):
             super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
             return
@@ -356,6 +389,15 @@ class SFDQN(OffPolicyAlgorithm):
                 next_obs[i] = infos[i]["terminal_observation"]
         replay_buffer.add(self._last_original_obs, next_obs, buffer_action, reward, dones, infos)  # type: ignore[arg-type]
         self._last_obs = new_obs  # type: ignore[assignment]
+
+    def _next_masks(self, infos: list[dict[str, Any]], dones: np.ndarray) -> np.ndarray | None:
+        """The masks of the observations the envs go on from: a step's, or the next episode's first where one ended."""
+        if self._last_action_masks is None and not any(ACTION_MASK in info for info in infos):
+            return None  # an env without masks: nothing read
+        reset_infos = getattr(self.env, "reset_infos", [{}] * len(infos))
+        return self._masks_of(
+            [reset_infos[i] if done else info for i, (info, done) in enumerate(zip(infos, dones, strict=True))]
+        )
 
     def _check_transition(self, new_obs: np.ndarray | dict[str, np.ndarray], reward: np.ndarray) -> None:
         """Refuse a non-finite reward or observation of a step before it is stored, naming env (agent) and step."""
