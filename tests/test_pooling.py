@@ -65,6 +65,7 @@ def test_experience_arrays_round_trip_and_malformed_ones_are_refused():
         "a NaN reward": {**good, "rewards": np.full_like(good["rewards"], np.nan)},
         "rewards of 3 objectives": {**good, "rewards": np.zeros((len(good["keys"]), 3))},
         "float counts": {**good, "counts": good["counts"].astype(np.float64)},
+        "a count short": {**good, "counts": good["counts"][1:]},
     }
     for problem, arrays in bad.items():
         with pytest.raises(ValueError, match="experience"):

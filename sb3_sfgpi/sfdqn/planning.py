@@ -206,7 +206,7 @@ class Experience:
             "counts must be integers >= 1, one per key": counts.dtype.kind in "iu"
             and counts.shape == keys.shape
             and bool(np.all(counts >= 1)),
-            "dones must be between 0 and the counts": dones.shape == keys.shape
+            "dones must be between 0 and the counts": dones.shape == counts.shape == keys.shape
             and bool(np.all((dones >= 0) & (dones <= counts))),
             f"rewards must be finite, shape (keys, {reward_dim})": rewards.shape == (len(keys), reward_dim)
             and bool(np.isfinite(rewards).all()),
