@@ -1,8 +1,8 @@
 """SFOLS + GPI on MO-Gymnasium problems with known fronts: expected utility against the exact optimum (EU/EU*).
 
 For each problem and seed, :class:`~sb3_sfgpi.masfols.MASFOLS` trains on the single-agent env with the learners the
-command line's preset picks for it (:mod:`sb3_sfgpi.cli.gym_domains`: tables for small integer observations, else
-MLPs), validation on 50 weights, and the budget below. Then GPI over the final Π is scored on 50 Dirichlet(1) test
+command line's preset picks for it (:mod:`sb3_sfgpi.cli.gym_domains`: tables for small integer observations, planned
+on the run's pooled replay, else MLPs), validation on 50 weights, and the budget below. Then GPI over the final Π is scored on 50 Dirichlet(1) test
 weights (``random_weights(d, 50, rng=0)``):
 
 * **EU** = mean over the test weights of ``w · V^GPI`` (discounted with the learners' γ). For the tabular problems it
@@ -37,7 +37,7 @@ from benchmarks._common import Row
 from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.callbacks import ValueEstimation
-from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, TABULAR_LEARNER
+from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, TABULAR_LEARNER, TABULAR_POOL_REPLAY
 from sb3_sfgpi.common.weights import random_weights
 
 NAME = "known fronts"
@@ -167,6 +167,7 @@ def _train_sfols(
     masfols = MASFOLS(
         _make_env(problem), policy=policy, steps_per_iteration=steps, learner_kwargs=learner,
         values=ValueEstimation(episodes=5), admission=Admission(validation_weights=50),
+        pool_replay=problem.tabular and TABULAR_POOL_REPLAY,
         evaluation=EvaluationConfig(weights, episodes=problem.eval_episodes), seed=seed,
     )  # fmt: skip
     start = time.perf_counter()

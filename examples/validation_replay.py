@@ -5,7 +5,9 @@ policies are the same (a left-out policy's value still goes to the schedule). A 
 ``--set validation_weights=0`` keeps every candidate in its policy set, so validation's rules can be replayed over it:
 the replay gives, to the last digit on the same machine, the curve of a run trained with those rules
 (``tests/test_validation_replay.py`` checks it). Runs of levers that put Π in the training loop (transfer, GPI
-behaviour, GPI values, replanning: written by older versions, which had them) are refused. After every iteration, as
+behaviour, GPI values, replanning: written by older versions, which had them) are refused, and so are runs that
+pooled their replay (``pool_replay``: every policy's SFs are planned again after each iteration, so those saved are
+the last iteration's, not those validation would have scored). After every iteration, as
 :class:`~sb3_sfgpi.admission.Admission` does it:
 
 * the iteration's new policies, one by one, join Π unless GPI does worse with them on the validation weights;
@@ -164,6 +166,9 @@ def load(args: argparse.Namespace) -> tuple[Candidates, bool, bool]:
         levers = removed or [f"value_mode={config['value_mode']}"]
         raise ValueError(f"{args.run_dir} was trained with {', '.join(levers)}, levers this version removed "
                          "(Π in the training loop: validation would have changed its candidates)")  # fmt: skip
+    if config["pool_replay"]:
+        raise ValueError(f"{args.run_dir} pooled its replay: the SFs saved are its last iteration's, not those "
+                         "validation would have scored")  # fmt: skip
     preset = load_domain(config["domain"])
     n_weights = preset.validation_weights if args.validation_weights is None else args.validation_weights
     if n_weights < 1:

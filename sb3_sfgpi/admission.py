@@ -87,6 +87,10 @@ class Admission:
         """Score policy sets with ``scorer`` (GPI on :meth:`weights`, ``episodes`` each) from now on."""
         self._scorer, self._cached = scorer, None
 
+    def forget(self) -> None:
+        """Forget GPI's score over Π (kept between iterations): call it after Π's SFs were changed in place."""
+        self._cached = None
+
     def admit(self, record: GPIPolicy, candidates: Sequence[Candidate], iteration: int) -> GPIPolicy:
         """
         Add the candidates that pass to ``record`` (every policy ever admitted), retire what pruning retires.

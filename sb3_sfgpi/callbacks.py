@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
@@ -26,9 +26,11 @@ from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
+from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.run_settings import VALUE_MODES
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
+from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.validation import ValidationScorer
 
 
@@ -70,6 +72,9 @@ class OLSCallback(BaseCallback):
     :param max_iterations: stop after this many iterations (None: only when the schedule ends)
     :param progress_bar: show progress bars for the iteration and the evaluation
     :param verbose: 1 prints a line per iteration
+    :param pooled: where given, every iteration's transitions are pooled and the SFs of the new policies and of every
+        recorded one planned on the pool before the values are estimated (single-agent tabular runs; see
+        :mod:`sb3_sfgpi.pooling`); the run directory keeps what each iteration added
     """
 
     model: MultiAgentRunner  # type: ignore[assignment]
@@ -86,6 +91,7 @@ class OLSCallback(BaseCallback):
         max_iterations: int | None = None,
         progress_bar: bool = False,
         verbose: int = 0,
+        pooled: PooledReplay | None = None,
     ):
         super().__init__(verbose)
         if steps_per_iteration < 1:
@@ -101,6 +107,7 @@ class OLSCallback(BaseCallback):
         self.steps_per_iteration = steps_per_iteration
         self.evaluation = evaluation
         self.values = values
+        self.pooled = pooled
         self.run_dir = run_dir if run_dir is None or isinstance(run_dir, RunDirectory) else RunDirectory(run_dir)
         self.resume = resume
         self.max_iterations = max_iterations
@@ -166,6 +173,7 @@ class OLSCallback(BaseCallback):
         if self._iteration_bar is not None:
             self._iteration_bar.close()
         self.model.end_iteration()  # line 15: the agents learned their policies and SFs
+        self._pool_replay()  # with pooled replay: every policy's SFs planned on all that was seen so far
         candidates = [
             Candidate(self.model.learners[name], value, name)
             for name, value in self._estimate_values().items()  # lines 17-19: V^π of each agent's new policy
@@ -180,6 +188,20 @@ class OLSCallback(BaseCallback):
         self.finished = self._pending is None or self.reached_max_iterations  # line 5: the queue is empty
         if not self.finished:
             self._start_iteration(self._pending)  # type: ignore[arg-type]
+
+    def _pool_replay(self) -> None:
+        """With pooled replay: pool the iteration's transitions, plan the new and the recorded policies' SFs on them."""
+        if self.pooled is None:
+            return
+        added = self.pooled.add_learners(self.model.learners.values())
+        if self.run_dir is not None:
+            self.run_dir.write_experience(self.iteration + 1, added.arrays())
+        learners = list(self.model.learners.values())
+        tables = cast("list[TabularSFNetwork]", [learner.policy.sf_net for learner in learners] + self.record.networks)
+        weights = [learner.weights for learner in learners] + [info.weights for info in self.record.infos]
+        self.pooled.plan(zip(tables, weights, strict=True))
+        self.record.networks_changed()
+        self.admission.forget()  # Π's SFs changed, and with them GPI's score over Π
 
     def _next_weights(self) -> AgentWeights | None:
         """The next weights from the schedule (top of the OLS queue, Dirichlet(1) beyond it), None when it ended."""
@@ -268,6 +290,10 @@ class OLSCallback(BaseCallback):
         self.policy_set = self.record.members()
         self.history = self.run_dir.read_history(state["iteration"])
         self.iteration = state["iteration"]
+        if self.pooled is not None:
+            for iteration in range(1, self.iteration + 1):
+                table = cast(TabularSFNetwork, self.record.networks[0])
+                self.pooled.add_saved(self.run_dir.read_experience(iteration), table)
         self.model.num_timesteps = state["timesteps"]
         if state["next_weights"] is None:
             return None

@@ -26,6 +26,7 @@ from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_logger import run_logger
 from sb3_sfgpi.run_settings import REMOVED_SETTINGS, SETTING_DEFAULTS, SETTINGS, acts_by_own_policies
@@ -54,6 +55,11 @@ class MASFOLS:
         (one weight per iteration, trained on all the agents' transitions; for many homogeneous agents)
     :param values: how the value vector of a new policy is estimated (default: the new learners acting together)
     :param admission: which new policies join Π (default: every one, as in the paper)
+    :param pool_replay: pool the transitions of every iteration into one empirical model and, after every iteration,
+        plan the SF tables of the new policies and of Π's on it for their own weights, before the values are
+        estimated and validation scores GPI (see :mod:`sb3_sfgpi.pooling`). Single-agent envs (one agent: its
+        dynamics do not depend on the policy) and ``TabularPolicy`` only; the run directory keeps what each
+        iteration added, so that a resumed run is the same
     :param evaluation: how GPI is evaluated after every iteration: its ``test_weights`` are an array ``(n, d)``, a
         number ``n`` of Dirichlet(1) weights drawn with seed 0, or None (12 such weights; fixed weights: those);
         ``workers > 0`` evaluates in worker processes built by its ``env_fn`` (default: this ``env_fn``)
@@ -66,7 +72,8 @@ class MASFOLS:
     :param run_dir: where Π, evaluations, checkpoints and logs go (None: nowhere). :attr:`run_info` is written to
         its ``run.json`` when :meth:`learn` starts
     :param verbose: 1 prints a line per iteration, and the policies validation leaves out or retires
-    :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them)
+    :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them);
+        ``pool_replay`` with several agents or other learners than tables
     """
 
     def __init__(
@@ -80,6 +87,7 @@ class MASFOLS:
         sharing: str = "independent",
         values: ValueEstimation | None = None,
         admission: Admission | None = None,
+        pool_replay: bool = False,
         evaluation: EvaluationConfig | None = None,
         n_envs: int = 1,
         env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
@@ -100,6 +108,8 @@ class MASFOLS:
             env_fn=env_fn,
         )
         self.runner.check_learner()
+        if pool_replay:
+            _check_poolable(self.runner, policy)
         fixed = not isinstance(weights, str)
         evaluation = self._evaluation(evaluation or EvaluationConfig(), weights if fixed else None, sharing, env_fn)
         self.run_dir = None if run_dir is None else RunDirectory(run_dir)
@@ -118,12 +128,13 @@ class MASFOLS:
             "validation_weights": admission.validation_weights,
             "prune": admission.prune,
             "admit_together": admission.together,
+            "pool_replay": pool_replay,
             "sharing": sharing,
             "n_envs": n_envs,
         }
         self.callback = OLSCallback(
             make_schedule(weights, ols_batch), steps_per_iteration, evaluation, values, admission, self.run_dir,
-            verbose=verbose,
+            verbose=verbose, pooled=PooledReplay(self.runner.gamma) if pool_replay else None,
         )  # fmt: skip
         #: What :meth:`learn` writes to ``run.json``: the settings, and any plain data added here (the CLI adds the
         #: domain and the env's arguments)
@@ -226,9 +237,23 @@ class MASFOLS:
         self.runner.env.close()
 
 
+def _check_poolable(runner: MultiAgentRunner, policy: str) -> None:
+    """Refuse pooled replay where it is not sound (several agents) or has nothing to plan (no tables)."""
+    if len(runner.agents) != 1:
+        raise ValueError(
+            f"pool_replay needs a single-agent env, not {len(runner.agents)} agents: an agent's transitions depend "
+            "on the other agents' policies"
+        )
+    if policy != "TabularPolicy":
+        raise ValueError(f"pool_replay plans SF tables: policy must be 'TabularPolicy', got {policy!r}")
+
+
 def _arguments(config: Mapping[str, Any], eval_workers: int, verbose: int) -> dict[str, Any]:
     """The arguments of :class:`MASFOLS` that rebuild a run from its stored settings."""
-    direct = ("policy", "weights", "ols_batch", "steps_per_iteration", "learner_kwargs", "sharing", "n_envs", "seed")
+    direct = (
+        *("policy", "weights", "ols_batch", "steps_per_iteration", "learner_kwargs", "sharing", "n_envs", "seed"),
+        "pool_replay",
+    )
     admission = Admission(
         config["validation_weights"], prune=config["prune"], together=config["admit_together"], verbose=verbose
     )

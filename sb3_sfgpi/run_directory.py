@@ -8,6 +8,8 @@ Layout (no other module spells these names)::
                        vector returns of GPI (discounted and not) and the last infos
     evaluation.csv     per iteration: the summary row
     checkpoint.json    the schedule's state (OLS), next iteration and its weights, number of policies in Π
+    experience/        with pooled replay (:mod:`sb3_sfgpi.pooling`): per iteration, the transitions its learners
+                       added to the pool (``iteration_001.npz``, ...: counts per (s, a, s'), plain arrays)
     logs/              the runner's SB3 logger (progress.csv, TensorBoard scalars of OLS and GPI)
     tensorboard/       the learners' TensorBoard logs, one folder per agent and iteration
     compare.json       what ``sb3-sfgpi compare`` wrote (by default)
@@ -15,7 +17,8 @@ Layout (no other module spells these names)::
 
 Every file is written atomically. After an iteration, Π is written first (evaluation workers load it), then the
 evaluation files, and ``checkpoint.json`` last: it is what a resume trusts, so policies and rows
-beyond its counts (left by an iteration that was killed) are ignored.
+beyond its counts (left by an iteration that was killed) are ignored, and so are experience files beyond its
+iteration.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import io
 import json
 import shutil
 import tempfile
+import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -107,7 +111,7 @@ _SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
     **dict.fromkeys(("env_kwargs", "learner_kwargs"), lambda v: isinstance(v, dict)),
     **dict.fromkeys(("seed", "iterations", "steps_per_iteration", "n_test_weights", "validation_weights"), _integer),
     **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers", "n_envs"), _integer),
-    **dict.fromkeys(("prune", "admit_together"), lambda v: isinstance(v, bool)),
+    **dict.fromkeys(("prune", "admit_together", "pool_replay"), lambda v: isinstance(v, bool)),
     "test_weights": lambda v: _weights(v, 2),
     "weights": lambda v: isinstance(v, str) or _weights(v, 1),
 }
@@ -165,6 +169,10 @@ class RunDirectory:
     @property
     def tensorboard_dir(self) -> Path:
         return self.path / "tensorboard"
+
+    @property
+    def experience_dir(self) -> Path:
+        return self.path / "experience"
 
     @property
     def compare_file(self) -> Path:
@@ -318,6 +326,32 @@ class RunDirectory:
                 f"checkpoint {path}: 'next_weights' must be null or agent -> weights, got {next_weights!r}"
             )
         return state
+
+    def write_experience(self, iteration: int, arrays: dict[str, np.ndarray]) -> None:
+        """What iteration ``iteration`` (numbered from 1) added to the pooled replay, as plain arrays in an ``.npz``."""
+        out = io.BytesIO()
+        np.savez(out, allow_pickle=False, **arrays)
+        atomic_write_bytes(self._experience_file(iteration), out.getvalue())
+
+    def read_experience(self, iteration: int) -> dict[str, np.ndarray]:
+        """
+        The arrays :meth:`write_experience` wrote for ``iteration``, read without unpickling anything.
+
+        :raises ValueError: a missing or unreadable file
+        """
+        path = self._experience_file(iteration)
+        if not path.is_file():
+            raise ValueError(
+                f"{path} does not exist: the run pooled its replay, and iteration {iteration}'s is missing"
+            )
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                return {key: data[key] for key in data.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+            raise ValueError(f"{path} is not an experience file (truncated or corrupt?): {error}") from error
+
+    def _experience_file(self, iteration: int) -> Path:
+        return self.experience_dir / f"iteration_{iteration:03d}.npz"
 
     def read_history(self, n_iterations: int | None = None) -> list[dict[str, Any]]:
         """The rows of ``evaluation.json``, or its first ``n_iterations`` (those the checkpoint counts)."""

@@ -36,6 +36,7 @@ SETTINGS = (
     "admit_together",
     "sharing",
     "n_envs",
+    "pool_replay",
 )
 #: Settings that runs written before they existed lack, with the value that reproduces those runs.
 SETTING_DEFAULTS = {
@@ -45,6 +46,7 @@ SETTING_DEFAULTS = {
     "sharing": "independent",
     "n_envs": 1,
     "ols_batch": "top",
+    "pool_replay": False,
 }
 #: Settings of levers that were measured and removed (docs: experiments/levers), with the value that means "off":
 #: a run stored with another value cannot be continued by this version.

@@ -71,6 +71,7 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
         ),
         (["--set", "validation_weights=0", "--set", "admit_together=true"], "admit_together=true needs validation"),
         (["--algo", "random", "--set", "ols_batch=top"], "--set ols_batch is only for --algo ma-sfols"),
+        (["--set", "pool_replay=true"], "pool_replay needs a single-agent env, not 2 agents"),
     ],
 )
 def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, argv, message):

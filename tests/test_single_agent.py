@@ -4,6 +4,7 @@ relative to the reward scale, and the envs that are refused."""
 from __future__ import annotations
 
 import functools
+import json
 import subprocess
 import sys
 
@@ -112,6 +113,9 @@ def test_the_command_line_trains_an_mo_gymnasium_id(tmp_path):
     assert evaluated.returncode == 0 and "agent_0: return" in evaluated.stdout
     policy_set = GPIPolicy.load(out / "policy_set")
     assert policy_set.reward_dim == 2 and len(policy_set) >= 1
+    # the tabular preset pools its replay (docs: known fronts): what each iteration added is kept for resume
+    assert json.loads((out / "run.json").read_text())["pool_replay"] is True
+    assert sorted(p.name for p in (out / "experience").iterdir()) == ["iteration_001.npz", "iteration_002.npz"]
 
 
 @pytest.mark.parametrize(

@@ -75,6 +75,15 @@ def test_the_replay_takes_the_domains_rules_by_default(example, runs):
     candidates.env.close()
 
 
+def test_a_run_that_pooled_its_replay_is_refused(example, tmp_path):
+    settings = {"domain": "resource-gathering-v0", "algorithm": "ma-sfols", "seed": 0, "test_weights": [[1, 0, 0]]}
+    settings.update(env_kwargs={}, learner_kwargs={}, eval_episodes=1, validation_weights=0, pool_replay=True)
+    (tmp_path / "run.json").write_text(json.dumps(settings))
+    options = argparse.Namespace(run_dir=str(tmp_path), validation_weights=None, admit_together=None, prune=None)
+    with pytest.raises(ValueError, match="pooled its replay: the SFs saved are its last iteration's"):
+        example.load(options)
+
+
 class ScoredSets:
     """GPI's validation score given for each set of candidates: what the replay's rules read of the candidates."""
 

@@ -52,6 +52,8 @@ class DomainPreset:
         weights (with ``validation_weights > 0``)
     :param admit_together: also try an iteration's policies left out by validation together (with
         ``validation_weights > 0``)
+    :param pool_replay: plan every policy's SF table on the transitions of every iteration, pooled (single-agent
+        tabular domains; see :mod:`sb3_sfgpi.pooling`)
     :param sharing: ``"independent"`` (one learner per agent) or ``"shared"`` (one learner that every agent acts
         with and feeds; see :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`)
     :param eval_workers: default number of evaluation processes
@@ -81,6 +83,7 @@ class DomainPreset:
     validation_weights: int = 0
     prune: bool = False
     admit_together: bool = False
+    pool_replay: bool = False
     sharing: str = "independent"
     eval_workers: int = 0
     objectives: list[str] | None = None
@@ -181,7 +184,7 @@ class DomainPreset:
             raise UsageError(f"domain {self.name!r}: ols_batch must be one of {OLS_BATCHES}, got {self.ols_batch!r}")
         if self.sharing not in SHARINGS:
             raise UsageError(f"domain {self.name!r}: sharing must be one of {SHARINGS}, got {self.sharing!r}")
-        for key in ("prune", "admit_together"):
+        for key in ("prune", "admit_together", "pool_replay"):
             if not isinstance(getattr(self, key), bool):
                 raise UsageError(f"domain {self.name!r}: {key} must be true or false, got {getattr(self, key)!r}")
 

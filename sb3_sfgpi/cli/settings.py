@@ -32,6 +32,7 @@ SETTABLE: dict[str, tuple[Callable[[Any], bool], str]] = {
     "validation_weights": (_count(0), "an integer >= 0"),
     "prune": (lambda value: isinstance(value, bool), "true or false"),
     "admit_together": (lambda value: isinstance(value, bool), "true or false"),
+    "pool_replay": (lambda value: isinstance(value, bool), "true or false"),
     "n_test_weights": (_count(1), "an integer >= 1"),
     "value_episodes": (_count(1), "an integer >= 1"),
     "eval_episodes": (_count(1), "an integer >= 1"),

@@ -254,6 +254,7 @@ def _model(
         sharing=config["sharing"],
         values=ValueEstimation(config["value_mode"], config["value_episodes"]),
         admission=Admission(config["validation_weights"], prune=config["prune"], together=config["admit_together"]),
+        pool_replay=config["pool_replay"],
         evaluation=EvaluationConfig(
             None if fixed else config["n_test_weights"],  # fixed: at --w
             config["eval_episodes"],

@@ -16,6 +16,7 @@ In a deterministic environment the model is exact where it has been seen. Pairs 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -164,6 +165,56 @@ class Experience:
 
         summed_rewards = np.stack([total(rewards[:, i]) for i in range(rewards.shape[1])], axis=1)
         return cls(keys, counts.astype(np.int64), total(dones), summed_rewards, n_rows, n_actions)
+
+    def merged(self, other: Experience) -> Experience:
+        """
+        This experience and ``other`` together: the counts, terminations and reward sums of each outcome added.
+
+        :raises ValueError: experiences of tables of other sizes or reward dimensions
+        """
+        if (self.n_rows, self.n_actions, self.reward_dim) != (other.n_rows, other.n_actions, other.reward_dim):
+            raise ValueError("cannot merge the experiences of tables of different sizes or reward dimensions")
+        keys, outcome = np.unique(np.concatenate([self.keys, other.keys]), return_inverse=True)
+        counts = np.bincount(outcome, weights=np.concatenate([self.counts, other.counts]), minlength=len(keys))
+        dones = np.concatenate([self.dones, other.dones])
+        rewards = np.concatenate([self.rewards, other.rewards])
+        return self._summed(keys, outcome, counts, dones, rewards, self.n_rows, self.n_actions)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The experience as plain arrays (for a file; :meth:`from_arrays` reads them back)."""
+        return {"keys": self.keys, "counts": self.counts, "dones": self.dones, "rewards": self.rewards}
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray], n_rows: int, n_actions: int, reward_dim: int) -> Experience:
+        """
+        The experience in ``arrays`` (:meth:`arrays`) of a table of ``n_rows`` rows and ``n_actions`` actions, checked.
+
+        :raises ValueError: a missing array, or arrays that no transitions of such a table make (keys not sorted,
+            distinct and in range; counts below 1; terminations outside ``[0, counts]``; non-finite rewards; shapes)
+        """
+        missing = {"keys", "counts", "dones", "rewards"} - set(arrays)
+        if missing:
+            raise ValueError(f"experience lacks {sorted(missing)}")
+        keys, counts = np.asarray(arrays["keys"]), np.asarray(arrays["counts"])
+        dones, rewards = np.asarray(arrays["dones"], dtype=np.float64), np.asarray(arrays["rewards"], dtype=np.float64)
+        n_entries = n_rows * n_actions
+        checks = {
+            "keys must be sorted, distinct outcomes of the table's pairs": keys.dtype.kind in "iu"
+            and keys.ndim == 1
+            and bool(np.all(np.diff(keys) > 0) and np.all(keys % n_actions == 0))
+            and (len(keys) == 0 or (keys[0] >= 0 and keys[-1] < n_entries * n_entries)),
+            "counts must be integers >= 1, one per key": counts.dtype.kind in "iu"
+            and counts.shape == keys.shape
+            and bool(np.all(counts >= 1)),
+            "dones must be between 0 and the counts": dones.shape == counts.shape == keys.shape
+            and bool(np.all((dones >= 0) & (dones <= counts))),
+            f"rewards must be finite, shape (keys, {reward_dim})": rewards.shape == (len(keys), reward_dim)
+            and bool(np.isfinite(rewards).all()),
+        }
+        for problem, holds in checks.items():
+            if not holds:
+                raise ValueError(f"experience: {problem}")
+        return cls(keys.astype(np.int64), counts.astype(np.int64), dones, rewards, n_rows, n_actions)
 
     @property
     def reward_dim(self) -> int:
