@@ -122,3 +122,20 @@ class SingleLight(gym.Env):
         reward = self.light.step(int(action))
         self._steps += 1
         return self.light.queues.copy(), reward, False, self._steps >= EPISODE_STEPS, {}
+
+
+class PaddedSingleLight(SingleLight):
+    """:class:`SingleLight` choosing among ``slots`` greens, those it lacks masked (``info["action_mask"]``)."""
+
+    def __init__(self, greens: Sequence[int] = (2, 3), index: int = 0, slots: int = 3):
+        super().__init__(greens, index)
+        self.action_space = spaces.Discrete(slots)
+        self._mask = (np.arange(slots) < greens[index]).astype(np.int8)
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        observation, _ = super().reset(seed=seed, options=options)
+        return observation, {"action_mask": self._mask}
+
+    def step(self, action: int):
+        observation, reward, terminated, truncated, _ = super().step(action)
+        return observation, reward, terminated, truncated, {"action_mask": self._mask}

@@ -8,7 +8,7 @@ import torch as th
 from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from queue_lights import MAX_QUEUE, QueueLights, SingleLight
+from queue_lights import MAX_QUEUE, PaddedSingleLight, QueueLights, SingleLight
 
 from sb3_sfgpi import SFDQN, GPIPolicy, PadActions
 from sb3_sfgpi.common.action_masks import checked_masks, info_mask
@@ -133,6 +133,19 @@ def test_masfols_trains_gem_mining_padded_and_never_sends_a_village_to_a_mine_it
     )
     masfols.learn(max_iterations=1)
     assert len(masfols.policy_set) >= 1
+
+
+def test_sfdqn_learns_on_a_masked_gymnasium_env_through_sb3s_own_loop_and_planning_refuses_masks():
+    """SB3's collect_rollouts path: masks from reset and step infos (the light refuses its phantom green)."""
+    model = SFDQN(env=PaddedSingleLight((2, 3), 0), weights=[0.5, 0.5], buffer_size=2_000, seed=0, **TABULAR)
+    model.learn(2_000)  # raises wherever the phantom green is explored, taken or sent
+    forbidden = model.replay_buffer.next_forbidden
+    assert model.replay_buffer.full and forbidden[:, 0].tolist() == [[False, False, True]] * 2_000
+    planner = SFDQN(
+        env=PaddedSingleLight((2, 3), 0), buffer_size=100, planning_sweeps=1, planning_interval=50, **TABULAR
+    )
+    with pytest.raises(ValueError, match="planning .*action masks"):
+        planner.learn(100)
 
 
 def _greedy_returns(act, env, w: np.ndarray, episodes: int = 20) -> dict[str, float]:

@@ -315,7 +315,16 @@ class TabularPolicy(SFDQNPolicy):
             self.sf_net_target.load_state_dict(self.sf_net.state_dict())
 
     def experience(self, replay_buffer: MOReplayBuffer) -> Experience:
-        """The transitions of ``replay_buffer``, condensed for planning (see :class:`Experience`)."""
+        """
+        The transitions of ``replay_buffer``, condensed for planning (see :class:`Experience`).
+
+        :raises ValueError: the buffer holds action masks: planning backs up every action's value
+        """
+        if replay_buffer.next_forbidden is not None:
+            raise ValueError(
+                "planning (planning_sweeps, pool_replay) does not take action masks (the env gives "
+                "info['action_mask']): turn it off"
+            )
         net = self.sf_net
         obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
         rows, next_rows = net.rows(obs, check=False), net.rows(next_obs, check=False)
@@ -337,10 +346,6 @@ class TabularPolicy(SFDQNPolicy):
             each component (0: what a fresh table holds), so that the sweeps back up no other value for them
         :return: the number of sweeps done
         """
-        if replay_buffer.next_forbidden is not None:
-            raise ValueError(
-                "planning does not take action masks (the env gives info['action_mask']): use planning_sweeps=0"
-            )
         model = self.experience(replay_buffer).model()
         return self._planned(
             plan_table(self.sf_net.entries(), model, self.weights.numpy(), gamma, max_sweeps, untried_value)
