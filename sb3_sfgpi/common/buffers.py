@@ -1,4 +1,4 @@
-"""Replay buffer for vector rewards.
+"""Replay buffer for vector rewards (and integer observations stored in the smallest dtype that holds them).
 
 SB3's :class:`~stable_baselines3.common.buffers.ReplayBuffer` stores one float per transition and, handed
 vector rewards, either fails or (when sampling) flattens them silently into shape ``(batch * d, 1)``.
@@ -25,6 +25,10 @@ class MOReplayBuffer(ReplayBuffer):
     Time-limit truncations are stored apart from terminations (``handle_timeout_termination``) so that
     truncated transitions bootstrap. With ``optimize_memory_usage=True`` the next observation of a
     truncated transition is lost, so, as in SB3, truncations are then treated as terminations.
+
+    Observations of an integer space are stored in the smallest integer dtype that holds the space
+    (:func:`compact_dtype`: a byte for the Four-Room's cells and flags, instead of SB3's ``int64``); they are read
+    back as the same values.
 
     :param buffer_size: Max number of transitions in the buffer
     :param observation_space: Observation space
@@ -61,6 +65,11 @@ class MOReplayBuffer(ReplayBuffer):
         )
         self.reward_dim = reward_dim
         self.rewards = np.zeros((self.buffer_size, self.n_envs, reward_dim), dtype=np.float32)
+        compact = compact_dtype(observation_space)
+        if compact is not None:  # the same values in fewer bytes; np.zeros, not zeros_like: no page is touched yet
+            self.observations = np.zeros(self.observations.shape, dtype=compact)
+            if not optimize_memory_usage:
+                self.next_observations = np.zeros(self.next_observations.shape, dtype=compact)
         self._rows_at_pos = 0  # rows of the step at ``pos`` written by add_rows (it is sampled once complete)
 
     def add(
@@ -214,6 +223,33 @@ class MOReplayBuffer(ReplayBuffer):
         obs, actions, next_obs, dones, rewards = self._arrays(batch_inds)
         data = (self._normalize_obs(obs, env), actions, self._normalize_obs(next_obs, env), dones[:, None], rewards)
         return ReplayBufferSamples(*tuple(map(self.to_torch, data)))
+
+
+#: The dtypes :func:`compact_dtype` chooses from, smallest first.
+COMPACT_DTYPES = (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32)
+
+
+def compact_dtype(space: spaces.Space) -> np.dtype | None:
+    """
+    The smallest integer dtype that holds every value of an integer observation space (Discrete, MultiDiscrete,
+    MultiBinary, bounded integer Box), where it is smaller than the space's own; None for any other space.
+    """
+    if isinstance(space, spaces.Discrete):
+        low, high = np.array(space.start), np.array(space.start + space.n - 1)
+    elif isinstance(space, spaces.MultiDiscrete):
+        low, high = np.asarray(space.start), np.asarray(space.start) + space.nvec - 1
+    elif isinstance(space, spaces.MultiBinary):
+        low, high = np.array(0), np.array(1)
+    elif isinstance(space, spaces.Box) and np.issubdtype(space.dtype, np.integer) and space.is_bounded():
+        low, high = space.low, space.high
+    else:
+        return None
+    own = np.dtype(space.dtype)
+    for dtype in COMPACT_DTYPES:
+        info = np.iinfo(dtype)
+        if info.min <= low.min() and high.max() <= info.max:
+            return np.dtype(dtype) if np.dtype(dtype).itemsize < own.itemsize else None
+    return None
 
 
 def _rows(array: np.ndarray, flat: np.ndarray) -> np.ndarray:
