@@ -43,9 +43,11 @@ class StackedTables:
         stored = np.unique(np.concatenate([table.stored_rows() for table in tables]))
         self.stack_row_numpy = np.full(first.table.n_rows, len(stored), dtype=np.int32)
         self.stack_row_numpy[stored] = np.arange(len(stored), dtype=np.int32)
-        self.tables_numpy = np.stack(
-            [np.concatenate([table.lookup(stored), table.default[None]]) for table in tables], axis=1
-        ).reshape(len(stored) + 1, -1)
+        stack = np.empty((len(stored) + 1, self.n_policies, first.table.width), dtype=np.float32)
+        for i, table in enumerate(tables):  # by the stored rows: a copy in Π needs no slot map of its own
+            stack[:, i] = table.default
+            stack[np.searchsorted(stored, table.stored_rows()), i] = table.stored_values()
+        self.tables_numpy = stack.reshape(len(stored) + 1, -1)
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         index = self.rows(obs_tensor.cpu().numpy(), check=False)

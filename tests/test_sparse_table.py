@@ -116,3 +116,4 @@ def test_a_policy_set_copies_and_saves_the_stored_rows_only(tmp_path):
     for w in ([1.0, 0.0, 0.0], [0.2, 0.3, 0.5]):
         expected = policy.q_values(observations, np.asarray(w) / np.sum(w))[0]
         np.testing.assert_array_equal(loaded.q_values(observations, w), expected)
+    assert loaded.networks[0].table._slot is None  # GPI's stack read the stored rows: no slot map per copy
