@@ -28,7 +28,7 @@ class MOReplayBuffer(ReplayBuffer):
 
     Observations of an integer space are stored in the smallest integer dtype that holds the space
     (:func:`compact_dtype`: a byte for the Four-Room's cells and flags, instead of SB3's ``int64``); they are read
-    back as the same values.
+    back as the same values in the space's dtype.
 
     :param buffer_size: Max number of transitions in the buffer
     :param observation_space: Observation space
@@ -207,9 +207,9 @@ class MOReplayBuffer(ReplayBuffer):
         next_source = self.observations if self.optimize_memory_usage else self.next_observations
         dones, timeouts = self.dones.reshape(-1).take(flat), self.timeouts.reshape(-1).take(flat)
         return (
-            _rows(self.observations, flat),
+            _rows(self.observations, flat).astype(self.observation_space.dtype, copy=False),
             _rows(self.actions, flat),
-            _rows(next_source, next_flat),
+            _rows(next_source, next_flat).astype(self.observation_space.dtype, copy=False),
             # A time-limit truncation is not a termination: it bootstraps.
             dones * (1 - timeouts),
             _rows(self.rewards, flat),
@@ -226,7 +226,7 @@ class MOReplayBuffer(ReplayBuffer):
 
 
 #: The dtypes :func:`compact_dtype` chooses from, smallest first.
-COMPACT_DTYPES = (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32)
+COMPACT_DTYPES = (np.uint8, np.int8, np.int16, np.int32)  # the integer dtypes torch supports in full
 
 
 def compact_dtype(space: spaces.Space) -> np.dtype | None:
