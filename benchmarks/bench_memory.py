@@ -14,7 +14,8 @@ arrays (numpy allocates lazily: untouched pages cost nothing).
   The ratio is SB3's bytes / ours: the vector rewards cost ``4 (d - 1)`` bytes more per transition.
 * **Policy sets** of 64 policies in a ``GPIPolicy`` after one ``predict`` (which builds the stacked parameters):
   traffic-sized MLP SF networks (15 inputs, [64, 64], 2 actions × d = 2) and Four-Room tables (169 states ×
-  4 actions × d = 3). The baseline is the bytes of the parameters themselves (one copy).
+  4 actions × d = 3, every row stored). The baseline is the bytes of the parameters (a table's stored rows) themselves
+  (one copy).
 """
 
 from __future__ import annotations
@@ -90,7 +91,9 @@ def child_policy_set(kind: str, n_policies: int) -> dict:
             space = spaces.Box(0.0, 1.0, shape=(15,), dtype=np.float32)
             extractor = FlattenExtractor(space)
             return SFNetwork(space, spaces.Discrete(2), extractor, extractor.features_dim, 2, net_arch=[64, 64]), 2
-        return TabularSFNetwork(spaces.MultiDiscrete([13, 13]), spaces.Discrete(4), 3), 3
+        net = TabularSFNetwork(spaces.MultiDiscrete([13, 13]), spaces.Discrete(4), 3)
+        net.table.set_dense(np.ones((net.table.n_rows, net.table.width)))  # every row learned
+        return net, 3
 
     # Warm up the allocator and torch with one throw-away set, then measure a fresh one.
     warm = GPIPolicy()
@@ -107,7 +110,11 @@ def child_policy_set(kind: str, n_policies: int) -> dict:
         del net
     policy_set.predict(policy_set.observation_space.sample(), np.ones(d))
     gc.collect()
-    params = sum(p.numel() * p.element_size() for p in policy_set.networks[0].parameters()) * n_policies
+    first = policy_set.networks[0]
+    if isinstance(first, TabularSFNetwork):
+        params = first.table.stored_values().nbytes * n_policies
+    else:
+        params = sum(p.numel() * p.element_size() for p in first.parameters()) * n_policies
     return {"rss": rss_bytes() - before, "nbytes": params}
 
 

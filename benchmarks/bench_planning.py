@@ -3,9 +3,9 @@
 The model is the experience of one agent of ``FourRoomParallelEnv`` (the ``four-room`` preset's ``"own"``
 observations: cell and own collected objects, a table of 2.8 million rows) acting uniformly at random for
 ``N`` joint steps. The candidate is :meth:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel.sweep`, which works on a
-contiguous copy of the rows the sweeps touch; the baseline is the backup it replaced, written here: the same
-Jacobi sweeps indexing the whole table at every sweep (greedy actions read per outcome, one ``bincount`` per
-objective). Both start from the same table (optimistic values, as the preset plans) and must end with identical
+contiguous copy of the rows the sweeps touch, of a table holding its stored rows; the baseline is the backup it
+replaced, written here on a dense table: the same Jacobi sweeps indexing the whole table at every sweep (greedy
+actions read per outcome, one ``bincount`` per objective). Both start from the same table (optimistic values, as the preset plans) and must end with identical
 tables (the note says so), since the candidate keeps the arithmetic and its order.
 """
 
@@ -17,6 +17,7 @@ from sfgpi_envs.four_room import FourRoomParallelEnv
 from benchmarks._common import Row, fmt_time, interleaved_samples, paired_ratio
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork, greedy_entries
 from sb3_sfgpi.sfdqn.planning import TOLERANCE, EmpiricalModel, Experience
+from sb3_sfgpi.sfdqn.sparse import SparseTable
 
 NAME = "planning"
 WEIGHTS = np.array([0.4, 0.59, 0.01], dtype=np.float32)
@@ -59,7 +60,7 @@ def random_walk_model(joint_steps: int, seed: int = 0) -> tuple[EmpiricalModel, 
         if not env.agents or terminations[agent] or truncations[agent]:
             observations, _ = env.reset()
     obs, actions, next_obs, dones, rewards = (np.array(column) for column in zip(*recorded, strict=True))
-    n_rows = net.table.num_embeddings
+    n_rows = net.table.n_rows
     experience = Experience.from_transitions(
         net.rows(obs), actions, net.rows(next_obs), dones.astype(np.float64), rewards, n_rows, net.n_actions
     )
@@ -78,19 +79,23 @@ def _planning_row(joint_steps: int, repeats: int) -> Row:
     untried = np.ones(len(start), dtype=bool)
     untried[model.entries] = False
     start[untried] = OPTIMISTIC
-    sweeps = {
-        "contiguous rows": lambda table: model.sweep(table, WEIGHTS, GAMMA, SWEEPS),
-        "whole table": lambda table: whole_table_sweep(model, table, WEIGHTS, GAMMA, SWEEPS),
-    }
-    tables = {name: start.copy() for name in sweeps}
+    stored = SparseTable(n_rows, model.n_actions * 3, default=OPTIMISTIC)  # the candidate's table: the same values
+    tried = stored.store(model.entries // model.n_actions) * model.n_actions + model.entries % model.n_actions
 
-    def plan(name: str) -> None:
-        tables[name][model.entries] = start[model.entries]  # the only rows a planning changes
-        sweeps[name](tables[name])
+    def plan(name: str) -> None:  # the only entries a planning changes are reset first
+        if name == "contiguous rows":
+            stored.values.reshape(-1, 3)[tried] = start[model.entries]
+            model.sweep(stored, WEIGHTS, GAMMA, SWEEPS)
+        else:
+            start_copy[model.entries] = start[model.entries]
+            whole_table_sweep(model, start_copy, WEIGHTS, GAMMA, SWEEPS)
+
+    sweeps = ("contiguous rows", "whole table")
+    start_copy = start.copy()
 
     samples = interleaved_samples({name: (lambda name=name: plan(name)) for name in sweeps}, repeats)
     ratio, q1, q3 = paired_ratio(samples, "whole table", "contiguous rows")
-    same = np.array_equal(tables["contiguous rows"], tables["whole table"])
+    same = np.array_equal(stored.dense().reshape(-1, 3), start_copy)
     return Row(
         NAME,
         f"{SWEEPS} sweeps, two-agent Four-Room model of {joint_steps:,} random steps "

@@ -48,7 +48,9 @@ start = time.perf_counter()
 runner.learn({steps}, Fixed())
 seconds = time.perf_counter() - start
 learners = runner.learners.values()
-digest = hashlib.sha256(b"".join(l.policy.sf_net.table.weight.detach().numpy().tobytes() for l in learners))
+space = env.observation_space("agent_0")
+every_obs = np.stack(np.unravel_index(np.arange(int(np.prod(space.nvec))), space.nvec), axis=1)  # every row, either tree
+digest = hashlib.sha256(b"".join(l.successor_features(every_obs).tobytes() for l in learners))
 steps = sum(l.num_timesteps for l in learners)
 print(json.dumps({{"rate": steps / seconds, "digest": digest.hexdigest()}}))
 """

@@ -47,7 +47,7 @@ from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_sp
 from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
-from sb3_sfgpi.stacking import Stacked, StackedVmap, WithoutOne, numpy_tables, stack_networks
+from sb3_sfgpi.stacking import Stacked, WithoutOne, numpy_tables, stack_networks
 
 __all__ = ["MANIFEST", "CorruptPolicySetError", "Decisions", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
 
@@ -329,10 +329,10 @@ class GPIPolicy:
         with th.no_grad():
             return self._stack().psi(obs_tensor)
 
-    def _psi_vmap(self, obs_tensor: th.Tensor) -> th.Tensor:
-        """``ψ`` by the generic ``vmap`` path, whatever the kind of network (a reference for tests and benchmarks)."""
+    def _psi_each(self, obs_tensor: th.Tensor) -> th.Tensor:
+        """``ψ`` of each network by its own forward pass, stacked (a reference for tests and benchmarks)."""
         with th.no_grad():
-            return StackedVmap(self.networks).psi(obs_tensor)
+            return th.stack([net(obs_tensor) for net in self.networks])
 
     def _obs_to_tensor(self, observation: np.ndarray) -> tuple[th.Tensor, bool]:
         return self._first().obs_to_tensor(observation)

@@ -25,7 +25,7 @@ from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory, replay_sized
 from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_logger import run_logger
@@ -99,7 +99,6 @@ class MASFOLS:
         values, admission = values or ValueEstimation(), admission or Admission(verbose=verbose)
         self.runner = MultiAgentRunner(
             env,
-            default_learner_factory(policy=policy, **learner_kwargs),
             seed=seed,
             gamma=learner_kwargs.get("gamma", 0.99),
             tensorboard_log=None if run_dir is None else str(RunDirectory(run_dir).tensorboard_dir),
@@ -107,6 +106,9 @@ class MASFOLS:
             n_envs=n_envs,
             env_fn=env_fn,
         )
+        slots = max(len(slots) for slots in self.runner.slots.values())
+        sized = replay_sized(learner_kwargs, steps_per_iteration, slots)
+        self.runner.learner_factory = default_learner_factory(policy=policy, **sized)
         self.runner.check_learner()
         if pool_replay:
             _check_poolable(self.runner, policy)

@@ -59,6 +59,24 @@ def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
     return make
 
 
+def replay_sized(learner_kwargs: Mapping[str, Any], steps_per_iteration: int, slots: int) -> dict[str, Any]:
+    """
+    SFDQN arguments whose replay buffer holds what a learner of the runner stores in one iteration, no more.
+
+    A learner stores at most one step of its slots per joint step (SB3's ``buffer_size`` counts rows: ``n_envs`` per
+    step), and it lives one iteration: a buffer of ``steps_per_iteration + 1`` steps never fills, so it holds and
+    samples exactly what a larger one would (the same random draws), without the larger one's memory (SB3 allocates
+    all of it up front, and glibc may hand out reused, hence resident, memory).
+
+    :param learner_kwargs: SFDQN arguments; a ``buffer_size`` below the cap is kept
+    :param steps_per_iteration: joint steps of an iteration
+    :param slots: the most slots (agents times env copies) a learner has
+    :return: a new dict of arguments
+    """
+    cap = (steps_per_iteration + 1) * slots
+    return {**learner_kwargs, "buffer_size": min(learner_kwargs.get("buffer_size", cap), cap)}
+
+
 class MultiAgentRunner:
     """
     Learners trained in lockstep on a shared PettingZoo ParallelEnv: one per agent (independent learners, the

@@ -1,8 +1,9 @@
 """One SF network as plain data and tensors: its architecture (JSON) and what its policy file holds.
 
 A policy file holds the network's state dict (tensors only, read with ``weights_only=True``); a table is stored as
-its non-zero rows: ``"table.rows"`` (their indices), ``"table.values"`` (the rows) and ``"table.shape"`` instead of
-the dense ``"table.weight"`` (which is read too). Reading never runs code.
+its stored rows: ``"table.rows"`` (their indices), ``"table.values"`` (the rows), ``"table.shape"`` and, where it is
+not zero, ``"table.default"`` (the value of every other row), instead of the dense ``"table.weight"`` of older
+versions (which is read too). Reading never runs code.
 """
 
 from __future__ import annotations
@@ -98,7 +99,8 @@ def declared_bytes(
     spec: dict[str, Any], observation_space: spaces.Space, action_space: spaces.Discrete, reward_dim: int
 ) -> int:
     """
-    The memory one network of :func:`network_spec` data takes (float32 parameters), computed before building it.
+    The memory one network of :func:`network_spec` data takes (float32 parameters), computed before building it: for
+    a table, the most it can take (every row stored).
 
     :raises ValueError: unknown kind, or a space a table cannot index
     """
@@ -140,30 +142,5 @@ def read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
 
 
 def file_state(net: nn.Module) -> dict[str, th.Tensor]:
-    """What a policy file holds: the network's state dict, a table's only by its non-zero rows (most stay zero)."""
-    state = {key: value.detach().cpu() for key, value in net.state_dict().items()}
-    if isinstance(net, TabularSFNetwork):
-        table = state.pop("table.weight")
-        rows = table.any(dim=1).nonzero().flatten()
-        state.update({"table.rows": rows, "table.values": table[rows], "table.shape": th.tensor(table.shape)})
-    return state
-
-
-def network_state(net: nn.Module, state: dict[str, th.Tensor]) -> dict[str, th.Tensor]:
-    """The state dict of ``net`` from what a policy file holds (the inverse of :func:`file_state`)."""
-    if not isinstance(net, TabularSFNetwork) or "table.weight" in state:
-        return state
-    state = dict(state)
-    rows, values, shape = state.pop("table.rows"), state.pop("table.values"), state.pop("table.shape")
-    expected = net.table.weight.shape
-    if tuple(shape.tolist()) != tuple(expected):
-        raise ValueError(f"the stored table has shape {tuple(shape.tolist())}, the network's is {tuple(expected)}")
-    if rows.dtype != th.long or rows.ndim != 1 or values.shape != (len(rows), expected[1]):
-        raise ValueError(f"stored table rows {tuple(rows.shape)} and values {tuple(values.shape)} do not match")
-    if len(rows) and (rows.min() < 0 or rows.max() >= expected[0]):
-        raise ValueError(f"stored table rows outside 0..{expected[0] - 1}")
-    if len(th.unique(rows)) != len(rows):
-        raise ValueError("stored table rows repeat: each row may be stored once")
-    table = th.zeros(expected, dtype=values.dtype)
-    table[rows] = values
-    return {**state, "table.weight": table}
+    """What a policy file holds: the network's state dict (a table's holds its stored rows, see TabularSFNetwork)."""
+    return {key: value.detach().cpu() for key, value in net.state_dict().items()}

@@ -34,7 +34,6 @@ from sb3_sfgpi.policy_files import (
     file_state,
     memory_budget,
     network_spec,
-    network_state,
     read_state_dict,
 )
 from sb3_sfgpi.run_directory import MANIFEST  # plain data: the name a run directory looks for too
@@ -124,7 +123,7 @@ def read_policy_set(directory: Path, retired: bool) -> list[tuple[nn.Module, dic
             if _checked_entry(entry) is not None and not retired:
                 continue
             net = build_network(manifest["network"], observation_space, action_space, reward_dim)
-            net.load_state_dict(network_state(net, read_state_dict(directory, entry["file"])))
+            net.load_state_dict(read_state_dict(directory, entry["file"]))
             policies.append((net, entry))
         return policies
     except CorruptPolicySetError:

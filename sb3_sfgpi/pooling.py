@@ -45,7 +45,7 @@ class PooledReplay:
 
         :raises ValueError: arrays that no transitions of such a table make
         """
-        n_rows, n_actions = table.table.num_embeddings, table.n_actions
+        n_rows, n_actions = table.table.n_rows, table.n_actions
         self.add(Experience.from_arrays(arrays, n_rows, n_actions, table.reward_dim))
 
     def add_learners(self, learners: Iterable[SFDQN]) -> Experience:
@@ -76,7 +76,4 @@ class PooledReplay:
             raise ValueError("nothing pooled yet: add transitions before planning on them")
         model = self.experience.model()
         for net, weights in tables:
-            entries = net.entries()
-            planned = entries.astype(np.float64)
-            plan_table(planned, model, np.asarray(weights, dtype=np.float64), self.gamma, SETTLE_SWEEPS)
-            entries[:] = planned
+            plan_table(net.table, model, np.asarray(weights, np.float64), self.gamma, SETTLE_SWEEPS, dtype=np.float64)

@@ -27,32 +27,32 @@ from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork
 class StackedTables:
     """
     The tables of a tabular set, stacked state-major: row ``k`` holds ``ψ^π(s, ·)`` of every policy ``π`` for the
-    ``k``-th state that some policy has learned (a non-zero row), and one last row of zeros serves every other state.
+    ``k``-th state that some policy has stored, and one last row holds every policy's default row, which serves every
+    other state.
 
-    Tables of large observation spaces are mostly zero (the Four-Room with object flags: under 1% of the rows), so
-    the stack holds the learned rows only. ``ψ`` of a batch is one gather of its rows (``P·A·d`` contiguous floats
-    per observation).
+    Tables of large observation spaces are mostly never visited (the Four-Room with object flags: under 1% of the
+    rows), so the stack holds the stored rows only. ``ψ`` of a batch is one gather of its rows (``P·A·d`` contiguous
+    floats per observation).
     """
 
     def __init__(self, networks: list[TabularSFNetwork]):
         first = networks[0]
         self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
-        self.n_states = first.table.num_embeddings
-        self.state_index, self.rows = first.state_index, first.rows
-        with th.no_grad():
-            learned = th.stack([net.table.weight.any(dim=1) for net in networks]).any(dim=0).nonzero().flatten()
-            self.stack_row = th.full((self.n_states,), len(learned), dtype=th.long, device=learned.device)
-            self.stack_row[learned] = th.arange(len(learned), device=learned.device)
-            width = self.n_policies * self.n_actions * self.reward_dim
-            rows = th.stack([net.table.weight[learned] for net in networks], dim=1).reshape(len(learned), width)
-            self.tables = th.cat([rows, rows.new_zeros(1, rows.shape[1])])
-        cpu = self.tables.device.type == "cpu"
-        self.tables_numpy = self.tables.numpy() if cpu else None
-        self.stack_row_numpy = self.stack_row.numpy() if cpu else None
+        self.rows = first.rows
+        tables = [net.table for net in networks]
+        stored = np.unique(np.concatenate([table.stored_rows() for table in tables]))
+        self.stack_row_numpy = np.full(first.table.n_rows, len(stored), dtype=np.int32)
+        self.stack_row_numpy[stored] = np.arange(len(stored), dtype=np.int32)
+        stack = np.empty((len(stored) + 1, self.n_policies, first.table.width), dtype=np.float32)
+        for i, table in enumerate(tables):  # by the stored rows: a copy in Π needs no slot map of its own
+            stack[:, i] = table.default
+            stack[np.searchsorted(stored, table.stored_rows()), i] = table.stored_values()
+        self.tables_numpy = stack.reshape(len(stored) + 1, -1)
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
-        rows = self.tables.index_select(0, self.stack_row[self.state_index(obs_tensor)])
-        return rows.view(-1, self.n_policies, self.n_actions, self.reward_dim).transpose(0, 1)
+        index = self.rows(obs_tensor.cpu().numpy(), check=False)
+        rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0)
+        return th.from_numpy(rows).view(-1, self.n_policies, self.n_actions, self.reward_dim).transpose(0, 1)
 
     def q_values_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """GPI action values of a batch, in numpy (CPU sets): cheaper than torch for a few small operations."""
@@ -60,7 +60,6 @@ class StackedTables:
 
     def policy_q_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Every policy's action values ``w · ψ^π(s, a)`` of a batch, shape ``(batch, P, A)`` (CPU sets)."""
-        assert self.tables_numpy is not None
         index = self.rows(obs)  # raises ValueError for an observation outside the space
         rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
         return weighted_sum(rows, weights).reshape(-1, self.n_policies, self.n_actions)

@@ -99,8 +99,7 @@ def random_tabular_network(
     """A tabular SF network on ``MultiDiscrete(nvec)`` with a random (seeded) table."""
     net = TabularSFNetwork(spaces.MultiDiscrete(list(nvec)), spaces.Discrete(n_actions), reward_dim)
     generator = th.Generator().manual_seed(seed)
-    with th.no_grad():
-        net.table.weight.copy_(th.randn(net.table.weight.shape, generator=generator))
+    net.table.set_dense(th.randn((net.table.n_rows, net.table.width), generator=generator).numpy())
     return net
 
 

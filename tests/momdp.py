@@ -12,7 +12,6 @@ from collections.abc import Callable, Sequence
 
 import gymnasium as gym
 import numpy as np
-import torch as th
 from gymnasium import spaces
 
 from sb3_sfgpi.sfdqn import TabularSFNetwork
@@ -152,6 +151,5 @@ def rollout_return(act: Callable[[object], int], gamma: float = 1.0, one_hot: bo
 def exact_tabular_network(actions: Sequence[int], gamma: float = 1.0) -> TabularSFNetwork:
     """A tabular SF network of the Fig. 1 MOMDP holding the exact ``ψ^π`` of the deterministic policy ``actions``."""
     net = TabularSFNetwork(spaces.Discrete(N_STATES), spaces.Discrete(N_ACTIONS), REWARD_DIM)
-    with th.no_grad():
-        net.table.weight.copy_(th.as_tensor(successor_features(actions, gamma).reshape(N_STATES, -1)))
+    net.table.set_dense(successor_features(actions, gamma).reshape(N_STATES, -1))
     return net

@@ -53,16 +53,17 @@ def test_the_replay_buffer_keeps_each_next_observations_mask_with_its_transition
 
 def test_the_td_target_bootstraps_on_the_best_allowed_action_only():
     model = SFDQN(env=SingleLight((3,)), weights=[0.5, 0.5], buffer_size=10, **{**TABULAR, "learning_rate": 0.5})
-    entries = model.policy.sf_net.entries()
+    net = model.policy.sf_net
     s, s_next = np.array([[0, 0, 0]]), np.array([[1, 0, 0]])
-    next_first = model.policy.sf_net.rows(s_next)[0] * 3
-    entries[next_first : next_first + 3] = [[-1.0, -1.0], [-2.0, -2.0], [5.0, 5.0]]  # green 2 the best, but masked
+    table = net.table.dense()
+    table[net.rows(s_next)[0]] = [-1.0, -1.0, -2.0, -2.0, 5.0, 5.0]  # green 2 the best, but masked
+    net.table.set_dense(table)
     reward = np.array([[-1.0, 0.0]], dtype=np.float32)
     mask = np.array([[True, True, False]])
     model.replay_buffer.add_rows(s, s_next, np.array([1]), reward, np.zeros(1), np.zeros(1), mask)
     model.policy.td_update(model.replay_buffer, 1, model.gamma, 10.0)
-    flat = model.policy.sf_net.rows(s)[0] * 3 + 1
-    np.testing.assert_allclose(entries[flat], 0.5 * (reward[0] + 0.9 * np.array([-1.0, -1.0])), rtol=1e-6)
+    learned = net.table.dense()[net.rows(s)[0]].reshape(3, 2)[1]
+    np.testing.assert_allclose(learned, 0.5 * (reward[0] + 0.9 * np.array([-1.0, -1.0])), rtol=1e-6)
     psi = th.tensor([[[-1.0, -1.0], [-2.0, -2.0], [5.0, 5.0]]])
     assert greedy_actions(psi, th.tensor([0.5, 0.5]), th.tensor(mask)).item() == 0  # the MLP's target, the same
     assert greedy_actions(psi, th.tensor([0.5, 0.5])).item() == 2
@@ -80,7 +81,8 @@ def test_learners_and_gpi_act_only_within_the_masks(masks, epsilon, seed):
     models = []
     for i in range(2):
         model = SFDQN(env=SingleLight((3,)), weights=[0.5, 0.5], buffer_size=10, seed=seed + i, **TABULAR)
-        model.policy.sf_net.entries()[:] = rng.normal(size=model.policy.sf_net.entries().shape)
+        table = model.policy.sf_net.table
+        table.set_dense(rng.normal(size=(table.n_rows, table.width)))
         model.exploration_rate = epsilon
         models.append(model)
     observations = rng.integers(0, MAX_QUEUE + 1, size=(len(masks), 3))
@@ -146,6 +148,24 @@ def test_sfdqn_learns_on_a_masked_gymnasium_env_through_sb3s_own_loop_and_planni
     )
     with pytest.raises(ValueError, match="planning .*action masks"):
         planner.learn(100)
+
+
+@pytest.mark.parametrize(
+    "device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not th.cuda.is_available(), reason="needs CUDA"))]
+)
+def test_mlp_learners_and_gpi_act_and_bootstrap_within_masks(device):
+    """The MLP path: masks sampled as tensors on the learner's device; the light refuses its phantom green."""
+    model = SFDQN(
+        "MlpPolicy", PaddedSingleLight((2, 3), 0), weights=[0.5, 0.5], learning_starts=20, buffer_size=500,
+        batch_size=16, train_freq=1, exploration_fraction=0.5, seed=0, device=device,
+    )  # fmt: skip
+    model.learn(300)
+    assert model.replay_buffer.sample(16).next_action_masks.device.type == device
+    observations = np.random.default_rng(0).integers(0, MAX_QUEUE + 1, size=(64, 2))
+    masks = np.tile([True, True, False], (64, 1))
+    for w in ([1.0, 0.0], [0.5, 0.5], [0.0, 1.0]):
+        actions, _ = GPIPolicy([model], device=device).predict(observations, w, action_masks=masks)
+        assert set(actions.tolist()) <= {0, 1}
 
 
 def _greedy_returns(act, env, w: np.ndarray, episodes: int = 20) -> dict[str, float]:

@@ -31,8 +31,7 @@ def chain_set(tables: list[np.ndarray]) -> GPIPolicy:
     policy_set = GPIPolicy()
     for table in tables:
         net = TabularSFNetwork(spaces.Discrete(N_STATES), spaces.Discrete(N_ACTIONS), REWARD_DIM)
-        with th.no_grad():
-            net.table.weight.copy_(th.as_tensor(table.reshape(N_STATES, -1), dtype=th.float32))
+        net.table.set_dense(table.reshape(N_STATES, -1))
         policy_set.add(net, weights=[0.5, 0.5])
     return policy_set
 

@@ -77,3 +77,26 @@ def test_stored_arrays_returns_every_valid_stored_transition(optimize_memory_usa
     )
     assert got == [tuple(float(x) if k >= 3 else x for k, x in enumerate(row)) for row in expected]
     assert not dones.any()
+
+
+@pytest.mark.parametrize(
+    "space, dtype",
+    [
+        (gym.spaces.MultiDiscrete([13, 13] + [2] * 12), np.uint8),  # the four-room preset's observations
+        (gym.spaces.Discrete(40_000), np.int32),  # no uint16: torch supports it in part only
+        (gym.spaces.Box(-3, 70_000, shape=(2,), dtype=np.int64), np.int32),
+        (gym.spaces.Discrete(300, start=-5), np.int16),
+        (gym.spaces.Box(0.0, 1.0, shape=(3,), dtype=np.float32), np.float32),  # not an integer space: as SB3's
+    ],
+)
+def test_integer_observations_are_stored_in_the_smallest_dtype_and_read_back_unchanged(space, dtype):
+    buffer = MOReplayBuffer(50, space, gym.spaces.Discrete(2), device="cpu", reward_dim=2)
+    assert buffer.observations.dtype == buffer.next_observations.dtype == dtype
+    space.seed(0)
+    observations = [space.sample() for _ in range(21)]
+    for obs, next_obs in zip(observations, observations[1:]):
+        buffer.add(obs[None], next_obs[None], np.array([[1]]), np.ones((1, 2)), np.array([0.0]), [{}])
+    obs, _, next_obs, _, _ = buffer.stored_arrays()
+    assert obs.dtype == next_obs.dtype == space.dtype  # read back as the space's
+    np.testing.assert_array_equal(obs.reshape(20, -1), np.reshape(observations[:-1], (20, -1)))
+    np.testing.assert_array_equal(next_obs.reshape(20, -1), np.reshape(observations[1:], (20, -1)))

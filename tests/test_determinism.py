@@ -135,8 +135,7 @@ def test_td_target_ties_go_to_the_first_action_at_any_batch_position(rows, w, ba
 
 def tabular_network(table: np.ndarray) -> TabularSFNetwork:
     net = TabularSFNetwork(spaces.Discrete(table.shape[0]), spaces.Discrete(4), 3)
-    with th.no_grad():
-        net.table.weight.copy_(th.as_tensor(table.reshape(table.shape[0], -1)))
+    net.table.set_dense(table.reshape(table.shape[0], -1))
     return net
 
 

@@ -105,9 +105,9 @@ def test_resolve_device_asks_torch_by_default():
 
 def test_tabular_sfdqn_trains_with_auto():
     model = tabular_sfdqn(device="auto")
-    assert model.device == th.device("cpu") and model.policy.sf_net.table.weight.device == th.device("cpu")
+    assert model.device == th.device("cpu") and model.policy.sf_net.device == th.device("cpu")
     model.learn(STEPS)
-    assert model.num_timesteps == STEPS and model.policy.sf_net.table.weight.abs().sum() > 0
+    assert model.num_timesteps == STEPS and len(model.policy.sf_net.table) > 0
 
 
 def test_mlp_sfdqn_trains_with_auto():
@@ -132,7 +132,7 @@ def test_tabular_sfdqn_loads_with_auto(tmp_path):
     model.save(tmp_path / "model.zip")
     loaded = SFDQN.load(tmp_path / "model.zip", device="auto")
     assert loaded.device == th.device("cpu")
-    th.testing.assert_close(loaded.policy.sf_net.table.weight, model.policy.sf_net.table.weight, rtol=0, atol=0)
+    np.testing.assert_array_equal(loaded.policy.sf_net.table.dense(), model.policy.sf_net.table.dense())
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -143,7 +143,7 @@ def test_tabular_sfdqn_loads_with_auto(tmp_path):
 def test_tabular_set_with_auto_stays_on_the_cpu_with_its_numpy_path(make_random_tabular):
     policy_set = filled_set(make_random_tabular, device="auto")
     assert policy_set.device == th.device("cpu")
-    assert all(net.table.weight.device == th.device("cpu") for net in policy_set.networks)
+    assert all(net.device == th.device("cpu") for net in policy_set.networks)
     assert policy_set._stack().tables_numpy is not None
     assert_same_predictions(policy_set, filled_set(make_random_tabular))
 
@@ -207,7 +207,7 @@ def test_mlp_sfdqn_with_auto_learns_on_cuda():
 @pytest.mark.skipif(not th.cuda.is_available(), reason="needs a CUDA GPU")
 def test_tabular_sfdqn_with_auto_stays_on_the_cpu_beside_a_gpu(tmp_path):
     model = tabular_sfdqn(device="auto")
-    assert model.device.type == "cpu" and model.policy.sf_net.table.weight.device.type == "cpu"
+    assert model.device.type == "cpu" and model.policy.sf_net.device.type == "cpu"
     model.learn(STEPS)
     model.save(tmp_path / "model.zip")
     assert SFDQN.load(tmp_path / "model.zip", device="auto").device.type == "cpu"

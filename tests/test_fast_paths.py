@@ -40,7 +40,7 @@ def test_stacked_gpi_paths_equal_the_vmap_path(kind, make_random_mlp, make_rando
     observations = np.stack([space.sample() for _ in range(17)])
     obs_tensor, _ = policy_set._obs_to_tensor(observations)
     assert isinstance(policy_set._stack(), StackedTables if kind == "tabular" else StackedMLP)
-    reference = policy_set._psi_vmap(obs_tensor)
+    reference = policy_set._psi_each(obs_tensor)
     np.testing.assert_allclose(policy_set.successor_features(observations), reference.numpy(), rtol=1e-6, atol=1e-6)
     for w in ([1.0, 0.0, 0.0], [0.2, 0.3, 0.5]):
         weights = th.as_tensor(np.asarray(w) / np.sum(w), dtype=th.float32)

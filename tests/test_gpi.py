@@ -93,8 +93,8 @@ def test_gpi_over_the_ccs_is_optimal_for_every_weight():
 
 def test_gpi_over_a_single_policy_is_that_policy_greedy(make_tabular_sfdqn):
     model = make_tabular_sfdqn([0.7, 0.3])
-    with th.no_grad():
-        model.policy.sf_net.table.weight.normal_()
+    table = model.policy.sf_net.table
+    table.set_dense(th.randn((table.n_rows, table.width)).numpy())
     policy_set = GPIPolicy([model])
     assert len(policy_set) == 1
     np.testing.assert_array_equal(policy_set.infos[0].weights, [0.7, 0.3])
@@ -105,8 +105,7 @@ def test_gpi_over_a_single_policy_is_that_policy_greedy(make_tabular_sfdqn):
         )
     # The set holds a copy: training the model further does not change it.
     before = policy_set.successor_features(observations)
-    with th.no_grad():
-        model.policy.sf_net.table.weight.add_(100.0)
+    table.set_dense(table.dense() + 100.0)
     np.testing.assert_array_equal(policy_set.successor_features(observations), before)
 
 
@@ -241,10 +240,11 @@ def test_tables_are_stored_and_stacked_by_their_learned_rows(tmp_path, make_rand
     policy_set = GPIPolicy()
     for seed, learned in enumerate(([0, 5, 17], [5, 20], [])):  # MultiDiscrete([3, 4, 2]): 24 rows
         net = make_random_tabular(seed)
-        with th.no_grad():
-            keep = th.zeros(24, dtype=th.bool)
-            keep[learned] = True
-            net.table.weight[~keep] = 0.0
+        keep = np.zeros(24, dtype=bool)
+        keep[learned] = True
+        table = net.table.dense()
+        table[~keep] = 0.0
+        net.table.set_dense(table)
         policy_set.add(net, weights=[1.0, 1.0, 1.0])
     policy_set.save(tmp_path / "set")
     stored = th.load(tmp_path / "set" / "policy_000.pt", weights_only=True)
@@ -253,13 +253,14 @@ def test_tables_are_stored_and_stacked_by_their_learned_rows(tmp_path, make_rand
     assert th.load(tmp_path / "set" / "policy_002.pt", weights_only=True)["table.rows"].numel() == 0
     loaded = GPIPolicy.load(tmp_path / "set")
     for original, restored in zip(policy_set.networks, loaded.networks, strict=True):
-        th.testing.assert_close(restored.table.weight, original.table.weight, rtol=0, atol=0)
-    assert loaded._stack().tables.shape == (4 + 1, 3 * 9)  # rows 0, 5, 17, 20 and one zero row for the others
+        np.testing.assert_array_equal(restored.table.dense(), original.table.dense())
+    assert loaded._stack().tables_numpy.shape == (4 + 1, 3 * 9)  # rows 0, 5, 17, 20 and one default row for the others
     every_state = np.array([[i, j, k] for i in range(3) for j in range(4) for k in range(2)])
     obs_tensor, _ = loaded._obs_to_tensor(every_state)
-    np.testing.assert_array_equal(loaded.successor_features(every_state), loaded._psi_vmap(obs_tensor).numpy())
+    each = loaded._psi_each(obs_tensor).numpy()
+    np.testing.assert_array_equal(loaded.successor_features(every_state), each)
     for w in ([1.0, 0.0, 0.0], [0.2, 0.3, 0.5]):
-        q = np.max(loaded._psi_vmap(obs_tensor).numpy() @ (np.array(w, dtype=np.float32) / np.sum(w)), axis=0)
+        q = np.max(each @ (np.array(w, dtype=np.float32) / np.sum(w)), axis=0)
         np.testing.assert_allclose(loaded.q_values(every_state, w), q, rtol=1e-6, atol=1e-6)
 
 
@@ -267,8 +268,7 @@ def test_a_set_of_untrained_tables_acts(tmp_path, make_random_tabular):
     policy_set = GPIPolicy()
     for seed in range(2):
         net = make_random_tabular(seed)
-        with th.no_grad():
-            net.table.weight.zero_()
+        net.table.fill(0.0)
         policy_set.add(net, weights=[1.0, 0.0, 0.0])
     policy_set.save(tmp_path / "set")
     loaded = GPIPolicy.load(tmp_path / "set")
@@ -513,7 +513,11 @@ def test_an_interrupted_save_keeps_the_previous_set_loadable(saved_set, monkeypa
 )
 def test_the_memory_a_manifest_declares_is_what_its_networks_take(spec, observation_space):
     net = build_network(spec, observation_space, spaces.Discrete(4), 3)
-    taken = sum(parameter.numel() * parameter.element_size() for parameter in net.parameters())
+    if spec["kind"] == "tabular":  # the most a table takes: every row stored
+        net.table.set_dense(np.ones((net.table.n_rows, net.table.width)))
+        taken = net.table.stored_values().nbytes
+    else:
+        taken = sum(parameter.numel() * parameter.element_size() for parameter in net.parameters())
     assert declared_bytes(spec, observation_space, spaces.Discrete(4), 3) == taken
 
 

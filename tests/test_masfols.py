@@ -11,6 +11,7 @@ from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 from stable_baselines3.common.logger import TensorBoardOutputFormat
 from tensorboard_scalars import scalar_steps
 
+from sb3_sfgpi import masfols
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.callbacks import ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
@@ -267,3 +268,19 @@ def test_training_without_a_run_directory_leaves_no_logger_folders(tmp_path, mon
     monkeypatch.setenv("SB3_LOGDIR", str(tmp_path / "sb3"))  # where SB3's configure() would create its folder
     make(steps=50, weights="random").learn(max_iterations=2)
     assert not (tmp_path / "sb3").exists()
+
+
+@pytest.mark.parametrize("sharing", ["independent", "shared"])
+def test_replay_holds_one_iteration_and_learns_what_a_larger_buffer_does(monkeypatch, sharing):
+    capped = make(steps=150, weights="random", sharing=sharing)
+    capped.learn(max_iterations=2)
+    positions = {learner.replay_buffer.buffer_size for learner in capped.runner.learners.values()}
+    assert positions == {151}  # steps of the learner's slots (SB3 divides buffer_size by n_envs)
+    monkeypatch.setattr(masfols, "replay_sized", lambda kwargs, steps, slots: dict(kwargs))  # as before: 10,000
+    larger = make(steps=150, weights="random", sharing=sharing)
+    larger.learn(max_iterations=2)
+    assert {learner.replay_buffer.buffer_size for learner in larger.runner.learners.values()} == {
+        10_000 // len(capped.runner.slots[name]) for name in capped.runner.learners
+    }
+    assert [row["mean_return"] for row in capped.history] == [row["mean_return"] for row in larger.history]
+    np.testing.assert_array_equal(capped.policy_set.successor_features(OBS), larger.policy_set.successor_features(OBS))

@@ -72,23 +72,23 @@ def test_optimism_finds_the_far_prize_that_epsilon_greedy_misses():
 def test_settle_leaves_untried_pairs_at_zero_and_the_tried_ones_at_the_planned_fixed_point():
     model = corridor_learner(optimistic_init=6.0)
     model.learn(30)  # too short to try every pair: some keep the optimistic 6 until the end of learn()
-    table = model.policy.sf_net.table.weight.detach().numpy().reshape(-1, 2).copy()
+    table = model.policy.sf_net.table.dense().reshape(-1, 2).copy()
     obs, actions, *_ = model.replay_buffer.stored_arrays()
     tried = np.zeros(len(table), dtype=bool)
     tried[obs.astype(np.int64).ravel() * 2 + actions.ravel()] = True
     assert 0 < tried.sum() < len(table)
     assert np.all(table[~tried] == 0.0)
-    np.testing.assert_array_equal(model.policy.sf_net_target.table.weight.detach().numpy(), table.reshape(LENGTH, 4))
+    np.testing.assert_array_equal(model.policy.sf_net_target.table.dense(), table.reshape(LENGTH, 4))
 
     fresh = corridor_learner(optimistic_init=0.0)  # a zero table planned to convergence on the same data
     fresh.policy.plan(model.replay_buffer, GAMMA, max_sweeps=10_000)
-    np.testing.assert_allclose(table, fresh.policy.sf_net.table.weight.detach().numpy().reshape(-1, 2), atol=1e-5)
+    np.testing.assert_allclose(table, fresh.policy.sf_net.table.dense().reshape(-1, 2), atol=1e-5)
 
 
 def test_a_second_learn_goes_on_from_the_settled_table():
     model = corridor_learner(optimistic_init=6.0).learn(30)
     model.learn(30, reset_num_timesteps=False)
-    table = model.policy.sf_net.table.weight.detach().numpy()
+    table = model.policy.sf_net.table.dense()
     assert table.max() < 6.0  # no optimism comes back
 
 
@@ -110,9 +110,7 @@ def test_optimism_survives_save_and_load(tmp_path):
     model.save(tmp_path / "model.zip")
     loaded = SFDQN.load(tmp_path / "model.zip", env=Corridor())
     assert loaded.optimistic_init == 6.0
-    np.testing.assert_array_equal(
-        loaded.policy.sf_net.table.weight.detach().numpy(), model.policy.sf_net.table.weight.detach().numpy()
-    )
+    np.testing.assert_array_equal(loaded.policy.sf_net.table.dense(), model.policy.sf_net.table.dense())
 
 
 def chain_runner(**overrides) -> MultiAgentRunner:
@@ -130,4 +128,4 @@ def test_the_multi_agent_runner_settles_every_learner_at_the_end_of_an_iteration
         runner.step()
     runner.end_iteration()
     for learner in runner.learners.values():
-        assert learner.policy.sf_net.table.weight.detach().numpy().max() < 100.0
+        assert learner.policy.sf_net.table.dense().max() < 100.0

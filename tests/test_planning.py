@@ -11,6 +11,15 @@ from momdp import N_STATES, REWARDS, TERMINAL, Fig1MOMDP, all_observations, opti
 
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.planning import TOLERANCE, Experience
+from sb3_sfgpi.sfdqn.sparse import SparseTable
+
+
+def sparse(table: np.ndarray, n_actions: int, default: float = 0.0) -> SparseTable:
+    """``table`` (one row per ``(state, action)``) as a table storing the states whose rows differ from ``default``."""
+    n_states = len(table) // n_actions
+    stored = SparseTable(n_states, n_actions * table.shape[1], default)
+    stored.set_dense(table.reshape(n_states, -1))
+    return stored
 
 
 def test_a_stochastic_model_is_backed_up_with_its_empirical_probabilities():
@@ -19,10 +28,10 @@ def test_a_stochastic_model_is_backed_up_with_its_empirical_probabilities():
     next_rows, dones = np.array([1, 1, 2, 2]), np.array([0.0, 0.0, 1.0, 1.0])
     rewards = np.array([[1, 0], [1, 0], [0, 3], [2, 2]], dtype=np.float32)
     model = Experience.from_transitions(rows, actions, next_rows, dones, rewards, n_rows=3, n_actions=1).model()
-    table = np.zeros((3, 2), dtype=np.float32)
+    table = SparseTable(3, 2)
     assert model.sweep(table, np.array([0.5, 0.5], np.float32), gamma=0.5, max_sweeps=50) < 50
     # ψ(s1) = (2, 2); ψ(s0) = 2/3 · ((1, 0) + 0.5 · (2, 2)) + 1/3 · (0, 3) = (4/3, 5/3); the end state stays 0.
-    np.testing.assert_allclose(table, [[4 / 3, 5 / 3], [2, 2], [0, 0]], rtol=1e-6)
+    np.testing.assert_allclose(table.dense(), [[4 / 3, 5 / 3], [2, 2], [0, 0]], rtol=1e-6)
 
 
 @settings(max_examples=30, deadline=None)
@@ -35,7 +44,7 @@ def test_sweeps_reach_value_iteration_on_the_empirical_model(seed, gamma):
     rewards = rng.integers(0, 3, (n, 2)).astype(np.float32)
     w = np.array([0.3, 0.7], dtype=np.float32)
     model = Experience.from_transitions(rows, actions, next_rows, dones, rewards, n_states, n_actions).model()
-    table = np.zeros((n_states * n_actions, 2), dtype=np.float32)
+    table = SparseTable(n_states, n_actions * 2)
     model.sweep(table, w, gamma, max_sweeps=2_000)
 
     # Value iteration, by hand, on the counts: one (s, a) at a time, every transition weighted equally.
@@ -46,7 +55,7 @@ def test_sweeps_reach_value_iteration_on_the_empirical_model(seed, gamma):
             seen = (rows == s) & (actions == a)
             following = previous[next_rows[seen], (previous[next_rows[seen]] @ w).argmax(axis=1)]
             expected[s, a] = np.mean(rewards[seen] + gamma * (1 - dones[seen])[:, None] * following, axis=0)
-    np.testing.assert_allclose(table.reshape(n_states, n_actions, 2), expected, atol=1e-4)
+    np.testing.assert_allclose(table.dense().reshape(n_states, n_actions, 2), expected, atol=1e-4)
 
 
 @settings(max_examples=40, deadline=None)
@@ -63,6 +72,7 @@ def test_a_sweep_is_the_jacobi_backup_of_the_whole_table_to_the_last_bit(seed, d
     model = Experience.from_transitions(rows, actions, next_rows, dones, rewards, n_states, n_actions).model()
     table = rng.normal(size=(n_states * n_actions, 3)).astype(np.float32)
     table[rng.random(len(table)) < 0.3] = 1.25  # optimistic untried pairs: exact ties between actions
+    table.reshape(n_states, -1)[rng.random(n_states) < 0.3] = 1.25  # and untried states: not stored below
     weights = rng.dirichlet(np.ones(3)).astype(np.float32)
     expected, expected_sweeps = table.copy(), 0
     while expected_sweeps < max_sweeps:
@@ -77,8 +87,9 @@ def test_a_sweep_is_the_jacobi_backup_of_the_whole_table_to_the_last_bit(seed, d
             expected[entry] = backed_up
         if np.abs(expected - previous).max() <= TOLERANCE:
             break
-    assert model.sweep(table, weights, 0.9, max_sweeps) == expected_sweeps
-    np.testing.assert_array_equal(table, expected)
+    stored = sparse(table, n_actions, default=1.25)
+    assert model.sweep(stored, weights, 0.9, max_sweeps) == expected_sweeps
+    np.testing.assert_array_equal(stored.dense().reshape(-1, 3), expected)
 
 
 @pytest.mark.parametrize("w", [[1.0, 0.0], [0.0, 1.0], [0.4, 0.6]])

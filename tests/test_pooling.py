@@ -90,11 +90,11 @@ def test_planning_on_an_exact_pool_gives_the_sfs_of_an_optimal_policy(w, gamma):
     # A table starting from the SFs of the worst policy: afterwards it holds ψ of its own greedy policy, exactly,
     # and that policy is optimal for w (brute force over all 81 policies).
     net = TabularSFNetwork(spaces.Discrete(N_STATES), spaces.Discrete(N_ACTIONS), REWARD_DIM)
-    net.entries()[:] = successor_features((2, 2, 2, 2), gamma).reshape(-1, REWARD_DIM)
+    net.table.set_dense(successor_features((2, 2, 2, 2), gamma).reshape(N_STATES, -1))
     pooled = PooledReplay(gamma)
     pooled.add(fig1_experience())
     pooled.plan([(net, np.array(w))])
-    psi = net.entries().reshape(N_STATES, N_ACTIONS, REWARD_DIM)
+    psi = net.table.dense().reshape(N_STATES, N_ACTIONS, REWARD_DIM)
     greedy = tuple(int(a) for a in (psi[:TERMINAL] @ np.array(w)).argmax(axis=1))
     np.testing.assert_allclose(psi, successor_features(greedy, gamma), atol=1e-5)
     assert (psi[0] @ np.array(w)).max() == pytest.approx(optimal_value(w, gamma), abs=1e-4)
@@ -116,7 +116,7 @@ def test_planning_on_a_stochastic_pool_is_the_policy_evaluation_of_the_greedy_po
     pooled = PooledReplay(gamma)
     pooled.add(experience)
     pooled.plan([(net, w)])
-    psi = net.entries().astype(np.float64).reshape(n_states, n_actions, 2)
+    psi = net.table.dense().astype(np.float64).reshape(n_states, n_actions, 2)
 
     counts = np.zeros((n_states, n_actions, n_states))
     np.add.at(counts, (s, a, s2), 1)

@@ -123,9 +123,9 @@ def test_optimize_memory_usage_samples_and_learns(make_tabular_sfdqn):
 
 
 def fill_table(net, seed: int) -> np.ndarray:
-    table = np.random.default_rng(seed).uniform(-2.0, 5.0, size=tuple(net.table.weight.shape)).astype(np.float32)
-    with th.no_grad():
-        net.table.weight.copy_(th.as_tensor(table))
+    size = (net.table.n_rows, net.table.width)
+    table = np.random.default_rng(seed).uniform(-2.0, 5.0, size=size).astype(np.float32)
+    net.table.set_dense(table)
     return table.reshape(N_STATES, 3, 2).astype(np.float64)
 
 
@@ -156,12 +156,10 @@ def test_one_train_step_is_the_tabular_sf_update(
     expected_target = r + (gamma * target[s_next, a_star] if bootstraps else 0.0)  # ... the target table values it
     expected = online.copy()
     expected[s, a] += alpha * (expected_target - online[s, a])
-    learned = model.policy.sf_net.table.weight.detach().numpy().reshape(N_STATES, 3, 2)
+    learned = model.policy.sf_net.table.dense().reshape(N_STATES, 3, 2)
     np.testing.assert_allclose(learned, expected, rtol=1e-5, atol=1e-5)
     if target_network:  # train() never writes the target table
-        np.testing.assert_array_equal(
-            model.policy.sf_net_target.table.weight.detach().numpy().reshape(N_STATES, 3, 2), target
-        )
+        np.testing.assert_array_equal(model.policy.sf_net_target.table.dense().reshape(N_STATES, 3, 2), target)
 
 
 def test_a_lin_learning_rate_falls_linearly_to_zero_over_learn(make_tabular_sfdqn):
@@ -251,8 +249,7 @@ def test_weights_are_normalised_and_predict_w_overrides(make_tabular_sfdqn):
     model = make_tabular_sfdqn([2.0, 6.0])
     np.testing.assert_allclose(model.weights, [0.25, 0.75])
     np.testing.assert_allclose(model.policy.weights.numpy(), [0.25, 0.75])
-    with th.no_grad():
-        model.policy.sf_net.table.weight.copy_(th.as_tensor(successor_features((1, 0, 1, 1)).reshape(N_STATES, -1)))
+    model.policy.sf_net.table.set_dense(successor_features((1, 0, 1, 1)).reshape(N_STATES, -1))
     # ψ(s0, ·) = (22, 24), (29, 24), (22, 20): B for w = (1, 0); A and B tie for w = (0, 1), ties go to A.
     assert model.predict(0, deterministic=True, w=[1, 0])[0] == 1
     assert model.predict(0, deterministic=True, w=[0, 1])[0] == 0
@@ -266,7 +263,7 @@ def test_the_behaviour_policy_breaks_ties_at_random_the_learned_policy_does_not(
         for parameter in model.policy.sf_net.parameters():
             parameter.zero_()
         if policy == "TabularPolicy":
-            model.policy.sf_net.table.weight.copy_(th.as_tensor(successor_features((1, 0, 1, 1)).reshape(N_STATES, -1)))
+            model.policy.sf_net.table.set_dense(successor_features((1, 0, 1, 1)).reshape(N_STATES, -1))
         else:  # a constant network: the last layer's bias alone
             model.policy.sf_net.sf_net[-1].bias.copy_(th.as_tensor(successor_features((1, 0, 1, 1))[0].reshape(-1)))
     model.exploration_rate = 0.0  # no ε-step: every action below is a greedy one

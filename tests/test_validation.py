@@ -202,8 +202,7 @@ def frozen_factory(tables: dict[tuple[str, int], np.ndarray]) -> LearnerFactory:
 
     def factory(name, view, weights, seed):
         model = make(name, view, weights, seed)
-        with th.no_grad():
-            model.policy.sf_net.table.weight.copy_(th.as_tensor(by_seed[seed].reshape(N_STATES, -1)))
+        model.policy.sf_net.table.set_dense(by_seed[seed].reshape(N_STATES, -1))
         model.policy.sf_net_target.load_state_dict(model.policy.sf_net.state_dict())
         model.train = lambda gradient_steps, batch_size=100: None
         return model

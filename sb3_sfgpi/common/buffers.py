@@ -1,4 +1,4 @@
-"""Replay buffer for vector rewards.
+"""Replay buffer for vector rewards (and integer observations stored in the smallest dtype that holds them).
 
 SB3's :class:`~stable_baselines3.common.buffers.ReplayBuffer` stores one float per transition and, handed
 vector rewards, either fails or (when sampling) flattens them silently into shape ``(batch * d, 1)``.
@@ -47,6 +47,10 @@ class MOReplayBuffer(ReplayBuffer):
     each next observation is stored with its transition, so that the TD target bootstraps only on allowed actions;
     the storage is made when the first mask arrives (rows stored before count as allowing every action).
 
+    Observations of an integer space are stored in the smallest integer dtype that holds the space
+    (:func:`compact_dtype`: a byte for the Four-Room's cells and flags, instead of SB3's ``int64``); they are read
+    back as the same values in the space's dtype.
+
     :param buffer_size: Max number of transitions in the buffer
     :param observation_space: Observation space
     :param action_space: Action space
@@ -82,6 +86,11 @@ class MOReplayBuffer(ReplayBuffer):
         )
         self.reward_dim = reward_dim
         self.rewards = np.zeros((self.buffer_size, self.n_envs, reward_dim), dtype=np.float32)
+        compact = compact_dtype(observation_space)
+        if compact is not None:  # the same values in fewer bytes; np.zeros, not zeros_like: no page is touched yet
+            self.observations = np.zeros(self.observations.shape, dtype=compact)
+            if not optimize_memory_usage:
+                self.next_observations = np.zeros(self.next_observations.shape, dtype=compact)
         self._rows_at_pos = 0  # rows of the step at ``pos`` written by add_rows (it is sampled once complete)
         #: True where a next observation's mask forbids the action, shape ``(buffer_size, n_envs, n_actions)``;
         #: None while no mask was stored (zeros: untouched pages cost no memory)
@@ -238,9 +247,9 @@ class MOReplayBuffer(ReplayBuffer):
         next_source = self.observations if self.optimize_memory_usage else self.next_observations
         dones, timeouts = self.dones.reshape(-1).take(flat), self.timeouts.reshape(-1).take(flat)
         return (
-            _rows(self.observations, flat),
+            _rows(self.observations, flat).astype(self.observation_space.dtype, copy=False),
             _rows(self.actions, flat),
-            _rows(next_source, next_flat),
+            _rows(next_source, next_flat).astype(self.observation_space.dtype, copy=False),
             # A time-limit truncation is not a termination: it bootstraps.
             dones * (1 - timeouts),
             _rows(self.rewards, flat),
@@ -257,6 +266,33 @@ class MOReplayBuffer(ReplayBuffer):
         return MOReplayBufferSamples(
             *map(self.to_torch, data), next_action_masks=None if next_masks is None else self.to_torch(next_masks)
         )
+
+
+#: The dtypes :func:`compact_dtype` chooses from, smallest first.
+COMPACT_DTYPES = (np.uint8, np.int8, np.int16, np.int32)  # the integer dtypes torch supports in full
+
+
+def compact_dtype(space: spaces.Space) -> np.dtype | None:
+    """
+    The smallest integer dtype that holds every value of an integer observation space (Discrete, MultiDiscrete,
+    MultiBinary, bounded integer Box), where it is smaller than the space's own; None for any other space.
+    """
+    if isinstance(space, spaces.Discrete):
+        low, high = np.array(space.start), np.array(space.start + space.n - 1)
+    elif isinstance(space, spaces.MultiDiscrete):
+        low, high = np.asarray(space.start), np.asarray(space.start) + space.nvec - 1
+    elif isinstance(space, spaces.MultiBinary):
+        low, high = np.array(0), np.array(1)
+    elif isinstance(space, spaces.Box) and np.issubdtype(space.dtype, np.integer) and space.is_bounded():
+        low, high = space.low, space.high
+    else:
+        return None
+    own = np.dtype(space.dtype)
+    for dtype in COMPACT_DTYPES:
+        info = np.iinfo(dtype)
+        if info.min <= low.min() and high.max() <= info.max:
+            return np.dtype(dtype) if np.dtype(dtype).itemsize < own.itemsize else None
+    return None
 
 
 def _rows(array: np.ndarray, flat: np.ndarray) -> np.ndarray:

@@ -18,9 +18,12 @@ from torch import nn
 
 from sb3_sfgpi.common.action_masks import masked
 from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.sfdqn.sparse import SparseTable
 
 #: Largest table :class:`TabularSFNetwork` builds (number of observation values).
 MAX_TABLE_STATES = 50_000_000
+#: What a table's state dict may hold (``table.weight``: the dense table of older versions).
+TABLE_KEYS = ("table.rows", "table.values", "table.shape", "table.default", "table.weight")
 
 
 def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
@@ -179,10 +182,13 @@ def observation_radices(observation_space: spaces.Space) -> tuple[np.ndarray, np
 
 class TabularSFNetwork(BasePolicy):
     """
-    Lookup table of successor features, one row per observation value, initialised to zero.
+    Table of successor features, one row per observation value, initialised to zero; it holds the rows it has stored
+    (:class:`~sb3_sfgpi.sfdqn.sparse.SparseTable`), every other row reads the default row.
 
     The row of an observation is its mixed-radix index; ``TabularPolicy.td_update`` updates the sampled rows
-    in place.
+    in place. The table lives in numpy on the CPU and has no torch parameters; its state dict holds
+    ``table.rows`` (the stored rows), ``table.values``, ``table.shape`` (of the whole table) and, where it is not
+    zero, ``table.default``; a dense ``table.weight`` (older versions) loads too.
 
     :param observation_space: a small integer observation space (see :func:`observation_radices`)
     :param action_space: Action space (Discrete)
@@ -203,44 +209,50 @@ class TabularSFNetwork(BasePolicy):
         strides = np.concatenate([np.cumprod(n_values[::-1])[::-1][1:], [1]]).astype(np.int64)
         self._low, self._strides, self._n_values = low.astype(np.int64), strides, n_values.astype(np.uint64)
         self._first_row = int(self._low @ strides)  # the row index of the lowest observation, before it is subtracted
-        self.register_buffer("low", th.as_tensor(low, dtype=th.long), persistent=False)
-        self.register_buffer("strides", th.as_tensor(strides, dtype=th.long), persistent=False)
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
-        self.table = nn.Embedding(n_states, self.n_actions * reward_dim)
-        nn.init.zeros_(self.table.weight)
+        self.table = SparseTable(n_states, self.n_actions * reward_dim)
 
     def entries(self) -> np.ndarray:
         """
-        The table as one row of ψ per ``(state, action)`` (row ``s * n_actions + a``): a numpy view sharing memory
-        with the module, so updates through it are updates of the table.
-
-        :raises ValueError: the table is not on the CPU
+        The table's storage as one row of ψ per ``(slot, action)`` (row ``slot * n_actions + a``; slot ``-1``, the
+        default row, is the last ``n_actions`` rows): a view, so updates through it are updates of the table (until
+        the table grows: take it after :meth:`SparseTable.store`).
         """
-        view = self.cpu_entries()
-        if view is None:
-            raise ValueError("TabularPolicy trains on the CPU: create SFDQN with device='cpu'")
-        return view
+        return self.table.values.reshape(-1, self.reward_dim)
 
-    def cpu_entries(self) -> np.ndarray | None:
-        """:meth:`entries`, or None where the table is not on the CPU (one view per storage of the table, kept)."""
-        weight = self.table.weight
-        cached = self.__dict__.get("_entries")  # (weight, its data pointer, the view)
-        if cached is not None and cached[0] is weight and cached[1] == weight.data_ptr():
-            return cached[2]
-        if not weight.is_cpu:
-            return None
-        view = weight.detach().numpy().reshape(-1, self.reward_dim)
-        self.__dict__["_entries"] = (weight, weight.data_ptr(), view)
-        return view
+    def _save_to_state_dict(self, destination: dict[str, Any], prefix: str, keep_vars: bool) -> None:
+        table = self.table
+        destination[prefix + "table.rows"] = th.from_numpy(table.stored_rows().copy())
+        destination[prefix + "table.values"] = th.from_numpy(table.stored_values().copy())
+        destination[prefix + "table.shape"] = th.tensor([table.n_rows, table.width])
+        if table.default.any():  # a settled or fresh table's file reads as before the key existed
+            destination[prefix + "table.default"] = th.from_numpy(table.default.copy())
 
-    def __getstate__(self) -> dict[str, Any]:
-        # A copy (deepcopy, pickle) makes its own view of its own table: the cached one is of this table's memory.
-        return {key: value for key, value in super().__getstate__().items() if key != "_entries"}
+    def _load_from_state_dict(
+        self,
+        state_dict: dict[str, Any],
+        prefix: str,
+        local_metadata: dict[str, Any],
+        strict: bool,
+        missing_keys: list[str],
+        unexpected_keys: list[str],
+        error_msgs: list[str],
+    ) -> None:
+        ours = {key[len(prefix) :]: value for key, value in state_dict.items() if key.startswith(prefix)}
+        unexpected_keys.extend(prefix + key for key in ours if key not in TABLE_KEYS)
+        try:
+            rows, values, default = _table_arrays(ours, (self.table.n_rows, self.table.width))
+        except KeyError as error:
+            missing_keys.append(prefix + str(error.args[0]))
+        except ValueError as error:
+            error_msgs.append(str(error))
+        else:
+            self.table.set_rows(rows, values, default)
 
     def rows(self, obs: np.ndarray, check: bool = True) -> np.ndarray:
         """
-        Numpy twin of :meth:`state_index`: row indices of raw observations, shape ``(batch,)``.
+        Row indices of raw observations, shape ``(batch,)``.
 
         :param obs: raw observations, shape ``(batch,)`` or ``(batch, n_components)``
         :param check: refuse observations outside the observation space (they would index another state's row);
@@ -263,21 +275,14 @@ class TabularSFNetwork(BasePolicy):
             first = raw[int(np.argmax(outside.any(axis=1)))].tolist()
             raise ValueError(f"observation {first} is outside the observation space {self.observation_space}")
 
-    def state_index(self, obs: th.Tensor) -> th.Tensor:
-        """
-        :param obs: raw integer observations, shape ``(batch,)`` or ``(batch, n_components)``
-        :return: row indices, shape ``(batch,)`` (unchecked: traced by ``torch.func.vmap``; :meth:`rows` checks)
-        """
-        components = obs.long().reshape(obs.shape[0], -1) - self.low
-        return (components * self.strides).sum(dim=1)
-
     def forward(self, obs: PyTorchObs) -> th.Tensor:
         """
         :param obs: Observation batch (not preprocessed)
         :return: ``ψ(s, ·)``, shape ``(batch, n_actions, d)``
         """
         assert isinstance(obs, th.Tensor)
-        return self.table(self.state_index(obs)).view(-1, self.n_actions, self.reward_dim)
+        psi = self.table.lookup(self.rows(obs.cpu().numpy(), check=False))
+        return th.from_numpy(psi).view(-1, self.n_actions, self.reward_dim)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         raise NotImplementedError("an SF network has no weights: use SFDQNPolicy or GPIPolicy to act")
@@ -286,3 +291,34 @@ class TabularSFNetwork(BasePolicy):
         return dict(
             observation_space=self.observation_space, action_space=self.action_space, reward_dim=self.reward_dim
         )
+
+
+def _table_arrays(state: dict[str, th.Tensor], shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """
+    The stored rows, their values and the default row of a table's state dict (keys without prefix), checked against
+    the table's ``shape``; a dense ``table.weight`` gives its non-zero rows.
+
+    :raises KeyError: a key it needs is missing
+    :raises ValueError: shapes, types or rows that do not fit the table
+    """
+    if "table.weight" in state:
+        dense = state["table.weight"]
+        if tuple(dense.shape) != shape:
+            raise ValueError(
+                f"size mismatch: the stored table has shape {tuple(dense.shape)}, the network's is {shape}"
+            )
+        rows = dense.any(dim=1).nonzero().flatten()
+        return rows.numpy(), dense[rows].numpy(), np.zeros(shape[1], dtype=np.float32)
+    rows, values, stored_shape = state["table.rows"], state["table.values"], state["table.shape"]
+    default = state.get("table.default", th.zeros(shape[1]))
+    if tuple(stored_shape.tolist()) != shape:
+        raise ValueError(f"the stored table has shape {tuple(stored_shape.tolist())}, the network's is {shape}")
+    if rows.dtype != th.long or rows.ndim != 1 or values.shape != (len(rows), shape[1]):
+        raise ValueError(f"stored table rows {tuple(rows.shape)} and values {tuple(values.shape)} do not match")
+    if default.shape != (shape[1],) or not values.is_floating_point() or not default.is_floating_point():
+        raise ValueError(f"stored table values {values.dtype} and default {tuple(default.shape)} do not fit")
+    if len(rows) and (rows.min() < 0 or rows.max() >= shape[0]):
+        raise ValueError(f"stored table rows outside 0..{shape[0] - 1}")
+    if len(th.unique(rows)) != len(rows):
+        raise ValueError("stored table rows repeat: each row may be stored once")
+    return rows.numpy(), values.numpy(), default.numpy()

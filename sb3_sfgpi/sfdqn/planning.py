@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.sfdqn.sparse import SparseTable
 
 #: Sweeps stop once no entry of ψ moves by more than this.
 TOLERANCE = 1e-6
@@ -49,27 +50,32 @@ class EmpiricalModel:
     reward: np.ndarray
     n_actions: int
 
-    def sweep(self, table: np.ndarray, weights: np.ndarray, gamma: float, max_sweeps: int) -> int:
+    def sweep(
+        self, table: SparseTable, weights: np.ndarray, gamma: float, max_sweeps: int, dtype: type = np.float32
+    ) -> int:
         """
         Back up every recorded pair of ``table`` in place, ``max_sweeps`` times or until no entry moves by more than
         :data:`TOLERANCE`.
 
         The sweeps work on a contiguous copy of the rows they read or write (every action of the states recorded
-        and of their next states), written back at the end: the same arithmetic as on the table, without indexing
-        the whole table at every sweep (``python -m benchmarks planning``).
+        and of their next states, which the table then stores), written back at the end: the same arithmetic as on
+        the table, without indexing the whole table at every sweep (``python -m benchmarks planning``).
 
-        :param table: ψ, one row per ``(state, action)``: shape ``(n_rows * n_actions, d)``
+        :param table: ψ, one row per state of ``n_actions * d`` values
         :param weights: ``w``, shape ``(d,)``
         :param gamma: discount factor
         :param max_sweeps: most sweeps to do
+        :param dtype: the precision of the sweeps (the table keeps its own)
         :return: the number of sweeps done
         """
         n_actions, n_pairs = self.n_actions, len(self.entries)
         states, local_state = np.unique(
             np.concatenate([self.entries, self.next_first]) // n_actions, return_inverse=True
         )
-        rows = (states[:, None] * n_actions + np.arange(n_actions)).ravel()
-        psi = table[rows]
+        slots = table.store(states)
+        entries = table.values.reshape(-1, self.reward.shape[1])
+        rows = (slots[:, None] * n_actions + np.arange(n_actions)).ravel()
+        psi = entries[rows].astype(dtype, copy=False)
         own = local_state[:n_pairs] * n_actions + self.entries % n_actions
         following_state = local_state[n_pairs:]
         first = np.arange(len(states)) * n_actions
@@ -86,7 +92,7 @@ class EmpiricalModel:
             psi[own] = backed_up
             if change <= TOLERANCE:
                 break
-        table[rows] = psi
+        entries[rows] = psi
         return sweeps
 
     def _summed_by_pair(self, values: np.ndarray) -> np.ndarray:
@@ -241,22 +247,27 @@ class Experience:
 
 
 def plan_table(
-    table: np.ndarray,
+    table: SparseTable,
     model: EmpiricalModel,
     weights: np.ndarray,
     gamma: float,
     max_sweeps: int,
     untried_value: float | None = None,
+    dtype: type = np.float32,
 ) -> int:
     """
     Plan a table on a model: :meth:`EmpiricalModel.sweep`, after giving the pairs the model has not recorded
     ``untried_value`` in every component of ψ (if given).
 
-    :param table: ψ, one row per ``(state, action)``, updated in place: shape ``(n_rows * n_actions, d)``
+    :param table: ψ, one row per state of ``n_actions * d`` values, updated in place
+    :param dtype: the precision of the sweeps (the table keeps its own)
     :return: the number of sweeps done
     """
     if untried_value is not None:
-        untried = np.ones(len(table), dtype=bool)
-        untried[model.entries] = False
-        table[untried] = untried_value
-    return model.sweep(table, weights, gamma, max_sweeps) if len(model.entries) else 0
+        n_actions = model.n_actions
+        tried = table.store(model.entries // n_actions) * n_actions + model.entries % n_actions
+        entries = table.values.reshape(len(table.values) * n_actions, -1)
+        untried = np.ones(len(entries), dtype=bool)
+        untried[tried] = False
+        entries[untried] = untried_value  # the default row's too: every pair of a row not stored is untried
+    return model.sweep(table, weights, gamma, max_sweeps, dtype) if len(model.entries) else 0

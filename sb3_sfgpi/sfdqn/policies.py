@@ -10,7 +10,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
-from stable_baselines3.common.utils import is_vectorized_observation
+from stable_baselines3.common.utils import is_vectorized_observation, polyak_update
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 from torch.nn import functional as F
@@ -143,6 +143,11 @@ class SFDQNPolicy(BasePolicy):
             weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
             return scalarize(self.sf_net(obs_tensor), weights_tensor).cpu().numpy(), vectorized
 
+    def update_target(self, tau: float = 1.0) -> None:
+        """Polyak update of the target network (if separate): ``(1 − τ) · target + τ · online`` (``τ = 1``: a copy)."""
+        if self.sf_net_target is not self.sf_net:
+            polyak_update(self.sf_net.parameters(), self.sf_net_target.parameters(), tau)
+
     def td_update(
         self,
         replay_buffer: MOReplayBuffer,
@@ -245,6 +250,9 @@ class TabularPolicy(SFDQNPolicy):
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate
     """
 
+    sf_net: TabularSFNetwork
+    sf_net_target: TabularSFNetwork
+
     def __init__(
         self,
         observation_space: spaces.Space,
@@ -273,8 +281,10 @@ class TabularPolicy(SFDQNPolicy):
             self.sf_net_target.load_state_dict(self.sf_net.state_dict())
         else:
             self.sf_net_target = self.sf_net
+        # The optimizer only holds α, which SB3's schedules set in its param groups; the table (numpy) has no torch
+        # parameters and the optimizer refuses an empty list, so it gets an empty placeholder, never stepped.
         self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            self.sf_net.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+            [th.empty(0, requires_grad=True)], lr=lr_schedule(1), **self.optimizer_kwargs
         )
 
     def make_sf_net(self) -> TabularSFNetwork:  # type: ignore[override]
@@ -285,21 +295,16 @@ class TabularPolicy(SFDQNPolicy):
         self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
     ) -> tuple[np.ndarray, bool]:
         """``argmax_a w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.greedy`)."""
-        if self.sf_net.cpu_entries() is None:
-            return super().greedy(observation, weights, random_ties)
         q_values, vectorized = self.q_values(observation, weights)
         return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
 
     def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """``w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.q_values`)."""
         net = self.sf_net
-        entries = net.cpu_entries()
-        if entries is None:
-            return super().q_values(observation, weights)
         # SB3's is_vectorized_observation, without its image-transpose step (integer spaces are never images).
         vectorized = is_vectorized_observation(observation, self.observation_space)
         obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
-        psi = entries.reshape(-1, net.n_actions, self.reward_dim)[net.rows(obs)]
+        psi = net.table.values.reshape(-1, net.n_actions, self.reward_dim)[net.table.slots(net.rows(obs))]
         return weighted_sum(psi, np.asarray(weights, dtype=np.float32)), vectorized
 
     def fill(self, value: float) -> None:
@@ -309,10 +314,9 @@ class TabularPolicy(SFDQNPolicy):
 
         :param value: the value of every component of ``ψ(s, a)``, for every pair
         """
-        with th.no_grad():
-            self.sf_net.table.weight.fill_(value)
+        self.sf_net.table.fill(value)
         if self.sf_net_target is not self.sf_net:
-            self.sf_net_target.load_state_dict(self.sf_net.state_dict())
+            self.sf_net_target.table.fill(value)
 
     def experience(self, replay_buffer: MOReplayBuffer) -> Experience:
         """
@@ -328,9 +332,7 @@ class TabularPolicy(SFDQNPolicy):
         net = self.sf_net
         obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
         rows, next_rows = net.rows(obs, check=False), net.rows(next_obs, check=False)
-        return Experience.from_transitions(
-            rows, actions, next_rows, dones, rewards, net.table.num_embeddings, net.n_actions
-        )
+        return Experience.from_transitions(rows, actions, next_rows, dones, rewards, net.table.n_rows, net.n_actions)
 
     def plan(
         self, replay_buffer: MOReplayBuffer, gamma: float, max_sweeps: int, untried_value: float | None = None
@@ -347,15 +349,22 @@ class TabularPolicy(SFDQNPolicy):
         :return: the number of sweeps done
         """
         model = self.experience(replay_buffer).model()
-        return self._planned(
-            plan_table(self.sf_net.entries(), model, self.weights.numpy(), gamma, max_sweeps, untried_value)
-        )
-
-    def _planned(self, sweeps: int) -> int:
-        """After planning: the target table (if separate) set to the planned one; ``sweeps`` passed on."""
-        if self.sf_net_target is not self.sf_net:
-            self.sf_net_target.load_state_dict(self.sf_net.state_dict())
+        sweeps = plan_table(self.sf_net.table, model, self.weights.numpy(), gamma, max_sweeps, untried_value)
+        self.update_target()
         return sweeps
+
+    def update_target(self, tau: float = 1.0) -> None:
+        """
+        Move the target table (if separate) towards the online one, every row: ``(1 − τ) · target + τ · online``
+        (``τ = 1``: a copy).
+        """
+        online, target = self.sf_net.table, self.sf_net_target.table
+        if target is online:
+            return
+        target.store(online.stored_rows())
+        values, rows = target.values, target.stored_rows()
+        values[: len(rows)] = (1 - tau) * values[: len(rows)] + tau * online.lookup(rows)
+        values[-1] = (1 - tau) * values[-1] + tau * online.default
 
     def td_update(
         self,
@@ -378,15 +387,18 @@ class TabularPolicy(SFDQNPolicy):
         """
         if vec_normalize_env is not None and vec_normalize_env.norm_obs:
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
-        net, target_net = self.sf_net, self.sf_net_target
-        entries, n_actions = net.entries(), net.n_actions
+        net, target_net, n_actions = self.sf_net, self.sf_net_target, self.sf_net.n_actions
         obs, actions, next_obs, dones, rewards, next_masks = replay_buffer.sample_arrays(batch_size)
-        next_flat = greedy_entries(
-            entries, net.rows(next_obs, check=False) * n_actions, n_actions, self.weights.numpy(), next_masks
-        )
-        next_entries = target_net.entries() if target_net is not net else entries
-        target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_entries[next_flat]
-        flat = net.rows(obs, check=False) * n_actions + actions.astype(np.int64, copy=False)
+        slots = net.table.store(net.rows(obs, check=False))  # the rows written: stored first (the table may grow)
+        next_rows = net.rows(next_obs, check=False)
+        entries, next_first = net.entries(), net.table.slots(next_rows) * n_actions
+        next_flat = greedy_entries(entries, next_first, n_actions, self.weights.numpy(), next_masks)
+        if target_net is net:
+            next_psi = entries[next_flat]
+        else:  # the greedy actions in the target table's own slots
+            next_psi = target_net.entries()[target_net.table.slots(next_rows) * n_actions + next_flat - next_first]
+        target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_psi
+        flat = slots * n_actions + actions.astype(np.int64, copy=False)
         td_error = target_psi - entries[flat]
         np.add.at(entries, flat, self.optimizer.param_groups[0]["lr"] * td_error)
         return float(0.5 * np.square(td_error).sum())

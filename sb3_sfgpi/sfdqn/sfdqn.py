@@ -12,7 +12,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.utils import LinearSchedule, polyak_update, safe_mean
+from stable_baselines3.common.utils import LinearSchedule, safe_mean
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_sfgpi.common.action_masks import ACTION_MASK, checked_masks, info_mask, masked, sample_allowed, stacked_masks
@@ -271,10 +271,8 @@ class SFDQN(OffPolicyAlgorithm):
     def _on_step(self) -> None:
         """Update the exploration rate and, every ``target_update_interval`` steps, the target network."""
         self._n_calls += 1
-        if self.policy.sf_net_target is not self.policy.sf_net and (
-            self._n_calls % max(self.target_update_interval // self.n_envs, 1) == 0
-        ):
-            polyak_update(self.policy.sf_net.parameters(), self.policy.sf_net_target.parameters(), self.tau)
+        if self._n_calls % max(self.target_update_interval // self.n_envs, 1) == 0:
+            self.policy.update_target(self.tau)
         self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
         self.logger.record("rollout/exploration_rate", self.exploration_rate)
 
