@@ -10,6 +10,7 @@ import pytest
 import torch as th
 from gymnasium import spaces
 from momdp import Fig1MOMDP
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
@@ -34,6 +35,18 @@ FIG1_TABULAR_STEPS = 1_200
 #: `train` options for tests of training mechanics on the four-room preset: validating untrained policies on the
 #: preset's 100 validation weights would take minutes
 FEW_VALIDATION = ["--set", "validation_weights=4"]
+
+
+class StopAfter(BaseCallback):
+    """Stops a run (as a kill would) after ``steps`` joint steps."""
+
+    def __init__(self, steps: int):
+        super().__init__()
+        self.steps = steps
+
+    def _on_step(self) -> bool:
+        return self.model.num_timesteps < self.steps
+
 
 BAD_WEIGHTS = [
     pytest.param([1.0], "length", id="wrong-length"),

@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 import pytest
+from conftest import StopAfter
 from parallel_chain import make_chain_runner, optimal_value
-from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_sfgpi.callbacks import OLSCallback
 from sb3_sfgpi.common.weights import random_weights
@@ -75,14 +75,6 @@ def test_resume_after_interruption_gives_the_same_policy_set(tmp_path):
     full = make_chain_runner(seed=3)
     full_cb = ols_callback(300, max_iterations=3, run_dir=tmp_path / "full")
     full.learn(900, full_cb)
-
-    class StopAfter(BaseCallback):
-        def __init__(self, steps: int):
-            super().__init__()
-            self.steps = steps
-
-        def _on_step(self) -> bool:
-            return self.model.num_timesteps < self.steps
 
     first = make_chain_runner(seed=3)
     first_cb = ols_callback(300, max_iterations=3, run_dir=tmp_path / "cut")

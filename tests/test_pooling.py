@@ -6,10 +6,10 @@ import json
 
 import numpy as np
 import pytest
+from conftest import StopAfter
 from gymnasium import spaces
 from momdp import N_ACTIONS, N_STATES, REWARD_DIM, REWARDS, TERMINAL, Fig1MOMDP, optimal_value, successor_features
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv
-from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.evaluation import EvaluationConfig
@@ -149,17 +149,6 @@ def resource_gathering_run(run_dir, **kwargs) -> MASFOLS:
         admission=Admission(validation_weights=2), evaluation=EvaluationConfig(3, episodes=2), seed=5,
         run_dir=run_dir, **kwargs,
     )  # fmt: skip
-
-
-class StopAfter(BaseCallback):
-    """Stops the run (as a kill would) after ``steps`` joint steps."""
-
-    def __init__(self, steps: int):
-        super().__init__()
-        self.steps = steps
-
-    def _on_step(self) -> bool:
-        return self.model.num_timesteps < self.steps
 
 
 def files(folder) -> dict[str, bytes]:
