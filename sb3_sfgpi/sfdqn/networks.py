@@ -301,6 +301,7 @@ def _table_arrays(state: dict[str, th.Tensor], shape: tuple[int, int]) -> tuple[
     :raises KeyError: a key it needs is missing
     :raises ValueError: shapes, types or rows that do not fit the table
     """
+    state = {key: value.detach().cpu() for key, value in state.items()}  # SB3 loads onto its device: tables are numpy
     if "table.weight" in state:
         dense = state["table.weight"]
         if tuple(dense.shape) != shape:
