@@ -318,11 +318,12 @@ def _train_gpi_pd(
     agent.train(
         total_timesteps=steps * iterations, eval_env=_seeded_env(problem, derive_seed(seed, "peer eval")),
         ref_point=np.zeros(agent.reward_dim), timesteps_per_iter=steps, weight_selection_algo="gpi-ls",
-        checkpoints=False,
+        checkpoints=False,  # ref_point serves only its logging, which is off
     )  # fmt: skip
     return agent
 
 
+#: morl-baselines' peer by the kind of the problem's learners: tabular (True) or MLP (False).
 PEERS = {
     True: Peer(  # tabular problems
         "morl_baselines.multi_policy.multi_policy_moqlearning.mp_mo_q_learning", "MPMOQLearning",
