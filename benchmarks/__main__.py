@@ -8,12 +8,13 @@
                                          # known-fronts, known-fronts-minecart (only when named)
     python -m benchmarks --output results.md
     python -m benchmarks known-fronts --seeds 0 1 2 --envs deep-sea-treasure resource-gathering fruit-tree
+    python -m benchmarks known-fronts-minecart --seeds 0 --peer-steps 150000   # GPI-PD's published budget
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
 repeats; the ratio is candidate speed / baseline speed (or baseline bytes / candidate bytes for memory),
 so > 1 means the candidate is better. The known-fronts rows measure learning instead: expected utility of GPI
-against the exact optimum (EU/EU*) on MO-Gymnasium problems, per seed; ``--seeds`` and ``--envs`` go to the
-benchmarks that take them.
+against the exact optimum (EU/EU*) on MO-Gymnasium problems, per seed; ``--seeds``, ``--envs`` and ``--peer-steps``
+go to the benchmarks that take them.
 """
 
 from __future__ import annotations
@@ -124,8 +125,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, help="also write the markdown (header + table) to this file")
     parser.add_argument("--seeds", type=int, nargs="+", help="seeds of the benchmarks that train (known-fronts)")
     parser.add_argument("--envs", nargs="+", help="envs of the benchmarks that take some (known-fronts)")
+    parser.add_argument("--peer-steps", type=int, help="env steps of the morl-baselines peers (default: ours)")
     args = parser.parse_args(argv)
-    options = {key: value for key, value in (("seeds", args.seeds), ("envs", args.envs)) if value is not None}
+    given = (("seeds", args.seeds), ("envs", args.envs), ("peer_steps", args.peer_steps))
+    options = {key: value for key, value in given if value is not None}
     single_thread_torch()
     names = args.names or [name for name in BENCHMARKS if name not in ON_REQUEST]
     rows: list[Row] = []

@@ -15,13 +15,19 @@ weights (``random_weights(d, 50, rng=0)``):
   exceed 1).
 
 Rows: per problem, EU/EU* mean ± std over the seeds with the per-seed values, then one row per seed (wall time of
-training with its per-iteration evaluations, env steps of training, |Π|). Where ``morl_baselines`` imports, its
-MPMOQLearning (OLS weights, GPI, Dyna) trains with the same env steps per problem and is scored the same way.
+training with its per-iteration evaluations, env steps of training, |Π|). Where ``morl_baselines`` imports, a peer
+of it trains with the same env steps per problem (``peer_steps`` / ``--peer-steps`` sets its own) and its GPI is
+scored the same way: MPMOQLearning (OLS weights, GPI, Dyna) on the tabular problems, GPI-PD (GPI-LS weights, PER,
+Dyna; its minecart example's settings, :data:`GPI_PD_SETTINGS`) on minecart, whose EU is then Monte Carlo by the
+protocol of our test evaluation (:func:`rollout_expected_utility`: the same episodes' seeds per test weight).
 Minecart is slow and runs only when named (``known-fronts-minecart`` or ``--envs minecart``).
 """
 
 from __future__ import annotations
 
+import functools
+import importlib
+import random
 import statistics
 import time
 from collections.abc import Callable, Sequence
@@ -30,6 +36,7 @@ from typing import Any
 
 import mo_gymnasium as mo
 import numpy as np
+import torch as th
 from sfgpi_envs.resource_gathering_optimum import resource_gathering_mdp
 from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_tree_mdp
 
@@ -38,7 +45,11 @@ from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.callbacks import ValueEstimation
 from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, TABULAR_LEARNER, TABULAR_POOL_REPLAY
+from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
+from sb3_sfgpi.common.rollouts import run_episodes
+from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.evaluation import summarize_test_episodes
 
 NAME = "known fronts"
 N_TEST_WEIGHTS = 50
@@ -84,28 +95,37 @@ class Outcome:
     iterations: int
 
 
-def run(quick: bool = False, seeds: Sequence[int] | None = None, envs: Sequence[str] | None = None) -> list[Row]:
+def run(
+    quick: bool = False,
+    seeds: Sequence[int] | None = None,
+    envs: Sequence[str] | None = None,
+    peer_steps: int | None = None,
+) -> list[Row]:
     """
     EU/EU* of SFOLS + GPI (and of morl-baselines where installed) on the known-front problems.
 
     :param quick: the smoke run's tiny budgets
     :param seeds: the seeds (default 0, 1, 2)
     :param envs: problem names or Gymnasium ids (default: all but minecart)
+    :param peer_steps: the morl-baselines peers' env steps (default: ours; e.g. :data:`GPI_PD_PUBLISHED_STEPS`)
     """
     names = [_problem_name(env) for env in envs or DEFAULT]
     seeds = list(SEEDS if seeds is None else seeds)
     rows: list[Row] = []
     for name in names:
         rows.extend(_problem_rows(PROBLEMS[name], seeds, quick))
-    rows.extend(_morl_rows([PROBLEMS[name] for name in names], seeds, quick))
+    rows.extend(_morl_rows([PROBLEMS[name] for name in names], seeds, quick, peer_steps))
     return rows
 
 
 def run_minecart(
-    quick: bool = False, seeds: Sequence[int] | None = None, envs: Sequence[str] | None = None
+    quick: bool = False,
+    seeds: Sequence[int] | None = None,
+    envs: Sequence[str] | None = None,
+    peer_steps: int | None = None,
 ) -> list[Row]:
     """Minecart alone (MLP learners, an approximate front; slow): ``python -m benchmarks known-fronts-minecart``."""
-    return run(quick, seeds, envs or ["minecart"])
+    return run(quick, seeds, envs or ["minecart"], peer_steps)
 
 
 def _problem_name(env: str) -> str:
@@ -227,53 +247,171 @@ def _seed_row(env_id: str, seed: int, outcome: Outcome, best: float) -> Row:
 
 
 # --- morl-baselines (optional: pip install morl-baselines) ------------------------------------------------------------
-def _morl_rows(problems: list[Problem], seeds: list[int], quick: bool) -> list[Row]:
-    """morl-baselines' MPMOQLearning at the same env steps, where it imports; else one row saying how to get it."""
-    try:
-        from morl_baselines.multi_policy.multi_policy_moqlearning.mp_mo_q_learning import MPMOQLearning
-    except ImportError:
-        return [Row(NAME, "morl-baselines MPMOQLearning (OLS + GPI)", MORL_MISSING)]
-    rows = []
-    for problem in problems:
+@dataclass(frozen=True)
+class Peer:
+    """
+    A morl-baselines algorithm run beside ours at the same env steps and scored the same way.
+
+    :param module: the module of its class (imported only when the peer runs)
+    :param name: its class's name
+    :param label: how the rows name it
+    :param train: builds and trains it: ``(class, problem, learner preset, seed, steps per iteration, iterations)``
+    :param policies: how many policies its GPI acts over, once trained
+    :param steps_per_iteration: its own iteration length (None: ours); the smoke run always takes ours
+    """
+
+    module: str
+    name: str
+    label: str
+    train: Callable[[Any, Problem, dict[str, Any], int, int, int], Any]
+    policies: Callable[[Any], int]
+    steps_per_iteration: int | None = None
+
+    def load(self) -> Any:
+        """The algorithm's class (:raises ImportError: morl-baselines is not installed)."""
+        return getattr(importlib.import_module(self.module), self.name)
+
+    def budget(self, problem: Problem, quick: bool, total: int | None) -> tuple[int, int]:
+        """``(steps per iteration, iterations)``: ``total`` env steps (default: ours) in its iterations."""
         steps, iterations = problem.budget(quick)
-        case = f"{problem.env_id}, morl-baselines MPMOQLearning (OLS, GPI, Dyna), {iterations} × {steps:,} steps"
-        if problem.model is None:
-            rows.append(Row(NAME, case, "not run: MPMOQLearning is tabular"))
-            continue
-        env = _make_env(problem)
-        _, learner = _learner_of(problem)
-        weights = random_weights(env.unwrapped.reward_space.shape[0], N_TEST_WEIGHTS, rng=0)
-        model = _model(problem, env, learner["gamma"])
-        best = float(_optimal_values(problem, env, model, weights, learner["gamma"]).mean())
-        try:
-            outcomes = [_train_morl(MPMOQLearning, problem, learner, weights, model, seed, quick) for seed in seeds]
-        except Exception as error:  # noqa: BLE001 - another version's API: say so in the table, go on
-            rows.append(Row(NAME, case, f"failed: {type(error).__name__}: {error}"))
-            continue
-        rows.append(_summary_row(case, outcomes, best, f"EU* {best:.4f}", seeds))
-        rows.extend(
-            _seed_row(f"{problem.env_id} morl-baselines", s, o, best) for s, o in zip(seeds, outcomes, strict=True)
-        )
-    return rows
+        per_iteration = steps if quick or self.steps_per_iteration is None else self.steps_per_iteration
+        return per_iteration, (total or steps * iterations) // per_iteration
 
 
-def _train_morl(
-    algorithm: Any, problem: Problem, learner: dict[str, Any], weights: np.ndarray, model: Any, seed: int, quick: bool
-) -> Outcome:
-    """One MPMOQLearning run with the preset's learning rate, γ and final ε, scored exactly by the model."""
-    steps, iterations = problem.budget(quick)
-    gamma, d = learner["gamma"], len(weights[0])
+def _train_mpmoq(
+    algorithm: Any, problem: Problem, learner: dict[str, Any], seed: int, steps: int, iterations: int
+) -> Any:
+    """MPMOQLearning (OLS weights, GPI, Dyna) with the preset's learning rate, γ and final ε."""
     agent = algorithm(
-        _make_env(problem), learning_rate=learner["learning_rate"], gamma=gamma, initial_epsilon=1.0,
-        final_epsilon=learner["exploration_final_eps"],
+        _seeded_env(problem, seed), learning_rate=learner["learning_rate"], gamma=learner["gamma"],
+        initial_epsilon=1.0, final_epsilon=learner["exploration_final_eps"],
         epsilon_decay_steps=int(learner["exploration_fraction"] * steps * iterations),  # its ε decays over all steps
         weight_selection_algo="ols", epsilon_ols=0.0, use_gpi_policy=True, dyna=True, seed=seed, log=False,
     )  # fmt: skip
-    start = time.perf_counter()
+    d = agent.reward_dim
     agent.train(
-        total_timesteps=steps * iterations, eval_env=_make_env(problem), ref_point=np.full(d, -100.0),
-        timesteps_per_iteration=steps,
+        total_timesteps=steps * iterations, eval_env=_seeded_env(problem, derive_seed(seed, "peer eval")),
+        ref_point=np.full(d, -100.0), timesteps_per_iteration=steps,
     )  # fmt: skip
+    return agent
+
+
+#: GPI-PD's settings where its minecart example (morl-baselines' ``examples/gpi_pd_minecart.py``) sets other values
+#: than its constructor's defaults; γ is the problem's (0.99, the example's is 0.98), the rest its defaults (4 × 256
+#: SF network, 2 of them, 20 gradient updates per step from step 5,000, PER, Dyna with a 5-member ensemble).
+GPI_PD_SETTINGS = {
+    "buffer_size": 200_000,
+    "initial_epsilon": 1.0,
+    "final_epsilon": 0.05,
+    "epsilon_decay_steps": 50_000,
+    "target_net_update_freq": 200,
+}
+#: The env steps of GPI-PD's minecart example (15 iterations of 10,000): ``--peer-steps 150000``.
+GPI_PD_PUBLISHED_STEPS = 150_000
+
+
+def _train_gpi_pd(
+    algorithm: Any, problem: Problem, learner: dict[str, Any], seed: int, steps: int, iterations: int
+) -> Any:
+    """GPI-PD with GPI-LS weights (its train's default), no wandb and no checkpoint files."""
+    agent = algorithm(_seeded_env(problem, seed), gamma=learner["gamma"], seed=seed, log=False, **GPI_PD_SETTINGS)
+    agent.train(
+        total_timesteps=steps * iterations, eval_env=_seeded_env(problem, derive_seed(seed, "peer eval")),
+        ref_point=np.zeros(agent.reward_dim), timesteps_per_iter=steps, weight_selection_algo="gpi-ls",
+        checkpoints=False,  # ref_point serves only its logging, which is off
+    )  # fmt: skip
+    return agent
+
+
+#: morl-baselines' peer by the kind of the problem's learners: tabular (True) or MLP (False).
+PEERS = {
+    True: Peer(  # tabular problems
+        "morl_baselines.multi_policy.multi_policy_moqlearning.mp_mo_q_learning", "MPMOQLearning",
+        "MPMOQLearning (OLS, GPI, Dyna)", _train_mpmoq, lambda agent: len(agent.policies),
+    ),
+    False: Peer(  # deep problems
+        "morl_baselines.multi_policy.gpi_pd.gpi_pd", "GPIPD", "GPI-PD (GPI-LS weights, PER, Dyna)", _train_gpi_pd,
+        lambda agent: len(agent.weight_support), steps_per_iteration=10_000,  # its minecart example's
+    ),
+}  # fmt: skip
+
+
+def _seeded_env(problem: Problem, seed: int) -> Any:
+    """A fresh env whose first reset and action sampling are seeded (the peers reset without a seed)."""
+    env = _make_env(problem)
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    return env
+
+
+def _morl_rows(problems: list[Problem], seeds: list[int], quick: bool, peer_steps: int | None = None) -> list[Row]:
+    """Per problem, its morl-baselines peer (:data:`PEERS`) at the same env steps (or ``peer_steps``)."""
+    peers = [(PEERS[problem.tabular], problem) for problem in problems]
+    return [row for peer, problem in peers for row in _peer_rows(peer, problem, seeds, quick, peer_steps)]
+
+
+def _peer_rows(peer: Peer, problem: Problem, seeds: list[int], quick: bool, peer_steps: int | None) -> list[Row]:
+    """The summary row of one peer on one problem and a row per seed; one row where it is missing or fails."""
+    steps, iterations = peer.budget(problem, quick, peer_steps)
+    case = f"{problem.env_id}, morl-baselines {peer.label}, {iterations} × {steps:,} steps"
+    try:
+        algorithm = peer.load()
+    except ImportError:
+        return [Row(NAME, case, MORL_MISSING)]
+    env = _make_env(problem)
+    _, learner = _learner_of(problem)
+    weights = random_weights(env.unwrapped.reward_space.shape[0], N_TEST_WEIGHTS, rng=0)
+    model = _model(problem, env, learner["gamma"])
+    best = float(_optimal_values(problem, env, model, weights, learner["gamma"]).mean())
+    try:
+        outcomes = [_train_peer(peer, algorithm, problem, learner, weights, model, seed, steps, iterations)
+                    for seed in seeds]  # fmt: skip
+    except Exception as error:  # noqa: BLE001 - another version's API: say so in the table, go on
+        return [Row(NAME, case, f"failed: {type(error).__name__}: {error}")]
+    label = f"{problem.env_id} morl-baselines {peer.name}"
+    return [_summary_row(case, outcomes, best, f"EU* {best:.4f}", seeds)] + [
+        _seed_row(label, seed, outcome, best) for seed, outcome in zip(seeds, outcomes, strict=True)
+    ]
+
+
+def _train_peer(
+    peer: Peer, algorithm: Any, problem: Problem, learner: dict[str, Any], weights: np.ndarray, model: Any,
+    seed: int, steps: int, iterations: int,
+) -> Outcome:  # fmt: skip
+    """One seeded run of a peer, its GPI scored like ours: exactly by the model, else by rollouts."""
+    random.seed(seed)  # the peers draw weights, minibatches and networks from the global generators
+    np.random.seed(seed)  # noqa: NPY002 - theirs, not ours
+    th.manual_seed(seed)
+    start = time.perf_counter()
+    agent = peer.train(algorithm, problem, learner, seed, steps, iterations)
     wall_time = time.perf_counter() - start
-    eu = model.expected_utility(lambda obs, w: [agent.eval(o, w) for o in obs], weights)
-    return Outcome(eu, None, wall_time, int(agent.global_step), len(agent.policies), iterations)
+    if model is None:
+        eu = rollout_expected_utility(problem, agent.eval, weights, learner["gamma"], seed)
+    else:
+        eu = model.expected_utility(lambda obs, w: [agent.eval(o, w) for o in obs], weights)
+    return Outcome(eu, None, wall_time, int(agent.global_step), peer.policies(agent), iterations)
+
+
+def rollout_expected_utility(
+    problem: Problem, act: Callable[[Any, np.ndarray], int], weights: np.ndarray, gamma: float, seed: int
+) -> float:
+    """
+    Monte-Carlo EU of a policy asked for one action at a time, by the protocol of our runs' test evaluation
+    (:class:`~sb3_sfgpi.evaluation.TestEvaluation`): ``problem.eval_episodes`` episodes per test weight on a fresh
+    env, those of weight ``i`` from ``derive_seed(seed, "eval", i)``; the mean over weights of w · discounted return.
+
+    :param act: ``act(observation, w)`` -> action (a morl-baselines agent's ``eval``)
+    :param seed: the run's seed
+    """
+    env = as_parallel_env(_make_env(problem))
+    returns = [
+        run_episodes(env, functools.partial(_joint_action, act, w), problem.eval_episodes, gamma,
+                     seed=derive_seed(seed, "eval", i))
+        for i, w in enumerate(weights)
+    ]  # fmt: skip
+    return summarize_test_episodes(weights, returns)[0]["mean_return"]
+
+
+def _joint_action(act: Callable[[Any, np.ndarray], int], w: np.ndarray, observations: dict[str, Any]) -> dict:
+    """Every live agent's action by ``act`` for the weight ``w``."""
+    return {agent: act(observation, w) for agent, observation in observations.items()}

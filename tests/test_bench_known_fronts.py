@@ -1,0 +1,80 @@
+"""The known-fronts benchmark's side of morl-baselines: the peers' budgets, the row of a peer that is not installed,
+and the Monte-Carlo EU by which a peer without a model (minecart's GPI-PD) is scored like our runs."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sb3_sfgpi.common.seeding import derive_seed
+from sb3_sfgpi.common.weights import random_weights
+
+pytest.importorskip("mo_gymnasium")
+if str(Path(__file__).resolve().parents[1]) not in sys.path:  # the benchmarks are not installed
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks import bench_known_fronts as bench  # noqa: E402
+
+DOWN = 1  # deep-sea-treasure's action 1; down from the start is the first treasure, 0.7, in one step
+
+
+def test_a_policy_that_always_goes_down_scores_the_first_treasure():
+    """Every episode of always-down is one step to the first treasure: EU is exactly mean(w · (0.7, -1))."""
+    problem = bench.PROBLEMS["deep-sea-treasure"]
+    weights = random_weights(2, 10, rng=0)
+    asked = []
+
+    def act(observation: np.ndarray, w: np.ndarray) -> int:
+        asked.append(tuple(w))
+        return DOWN
+
+    eu = bench.rollout_expected_utility(problem, act, weights, 0.99, seed=0)
+    assert eu == pytest.approx(np.mean(weights @ [0.7, -1.0]), abs=1e-6)  # the env's rewards are float32
+    assert asked == [tuple(w) for w in weights for _ in range(problem.eval_episodes)]  # each weight its episodes
+
+
+def test_the_rollouts_reset_with_our_test_evaluations_seeds(monkeypatch):
+    """Weight i's episodes start from derive_seed(seed, "eval", i), as TestEvaluation's do."""
+    problem = bench.PROBLEMS["minecart"]
+    seeds, run_episodes = [], bench.run_episodes
+
+    def episodes(env, policy, n_episodes, gamma, seed):
+        seeds.append(seed)
+        return run_episodes(env, policy, n_episodes, gamma, seed=seed)
+
+    monkeypatch.setattr(bench, "run_episodes", episodes)
+    monkeypatch.setattr(bench, "_make_env", lambda p: bench.mo.make("deep-sea-treasure-v0"))
+    bench.rollout_expected_utility(problem, lambda o, w: DOWN, random_weights(2, 3, rng=0), 0.99, seed=7)
+    assert seeds == [derive_seed(7, "eval", i) for i in range(3)]
+
+
+def test_the_peers_budgets():
+    gpi_pd, minecart = bench.PEERS[False], bench.PROBLEMS["minecart"]
+    assert gpi_pd.budget(minecart, quick=False, total=None) == (10_000, 6)  # our 3 × 20,000 in its iterations
+    assert gpi_pd.budget(minecart, quick=False, total=bench.GPI_PD_PUBLISHED_STEPS) == (10_000, 15)
+    assert gpi_pd.budget(minecart, quick=True, total=None) == minecart.quick  # the smoke run takes ours
+    mpmoq, fruit_tree = bench.PEERS[True], bench.PROBLEMS["fruit-tree"]
+    assert mpmoq.budget(fruit_tree, quick=False, total=None) == (5_000, 25)
+
+
+def test_a_peer_that_is_not_installed_gets_one_row_saying_so():
+    missing = bench.Peer("no_such_morl_module", "Nothing", "nothing", bench._train_gpi_pd, len)
+    rows = bench._peer_rows(missing, bench.PROBLEMS["minecart"], [0], quick=True, peer_steps=None)
+    assert [row.candidate for row in rows] == [bench.MORL_MISSING]
+
+
+def test_a_tabular_peer_is_scored_exactly_and_repeats_with_its_seed(monkeypatch):
+    """MPMOQLearning on deep-sea-treasure's smoke budget (a few seconds): a summary row and a seed row, the same EU
+    from the same seed."""
+    pytest.importorskip("morl_baselines")
+    monkeypatch.setattr(bench, "N_TEST_WEIGHTS", 5)
+    problem = bench.PROBLEMS["deep-sea-treasure"]
+    first, again = (bench._peer_rows(bench.PEERS[True], problem, [0], quick=True, peer_steps=None) for _ in range(2))
+    assert [row.case for row in first] == [
+        "deep-sea-treasure-v0, morl-baselines MPMOQLearning (OLS, GPI, Dyna), 2 × 1,500 steps",
+        "deep-sea-treasure-v0 morl-baselines MPMOQLearning seed 0",
+    ]
+    assert "3,000 env steps" in first[1].note
+    assert first[1].baseline == again[1].baseline and first[1].baseline.startswith("EU ")
