@@ -2,8 +2,8 @@
 
 For each problem and seed, :class:`~sb3_sfgpi.masfols.MASFOLS` trains on the single-agent env with the learners the
 command line's preset picks for it (:mod:`sb3_sfgpi.cli.gym_domains`: tables for small integer observations, planned
-on the run's pooled replay, else MLPs), validation on 50 weights, and the budget below. Then GPI over the final Π is scored on 50 Dirichlet(1) test
-weights (``random_weights(d, 50, rng=0)``):
+on the run's pooled replay, else MLPs), validation on 50 weights, and the budget below. Then GPI over the final Π is
+scored on 50 Dirichlet(1) test weights (``random_weights(d, 50, rng=0)``):
 
 * **EU** = mean over the test weights of ``w · V^GPI`` (discounted with the learners' γ). For the tabular problems it
   is exact: GPI's action in every state of the env's model (:mod:`sfgpi_envs.tabular_optimum`) and the policy's

@@ -5,8 +5,9 @@ observations: cell and own collected objects, a table of 2.8 million rows) actin
 ``N`` joint steps. The candidate is :meth:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel.sweep`, which works on a
 contiguous copy of the rows the sweeps touch, of a table holding its stored rows; the baseline is the backup it
 replaced, written here on a dense table: the same Jacobi sweeps indexing the whole table at every sweep (greedy
-actions read per outcome, one ``bincount`` per objective). Both start from the same table (optimistic values, as the preset plans) and must end with identical
-tables (the note says so), since the candidate keeps the arithmetic and its order.
+actions read per outcome, one ``bincount`` per objective). Both start from the same table (optimistic values, as the
+preset plans) and must end with identical tables (the note says so), since the candidate keeps the arithmetic and its
+order.
 """
 
 from __future__ import annotations

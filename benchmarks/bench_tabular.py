@@ -49,7 +49,8 @@ runner.learn({steps}, Fixed())
 seconds = time.perf_counter() - start
 learners = runner.learners.values()
 space = env.observation_space("agent_0")
-every_obs = np.stack(np.unravel_index(np.arange(int(np.prod(space.nvec))), space.nvec), axis=1)  # every row, either tree
+# every row, in either tree's tables
+every_obs = np.stack(np.unravel_index(np.arange(int(np.prod(space.nvec))), space.nvec), axis=1)
 digest = hashlib.sha256(b"".join(l.successor_features(every_obs).tobytes() for l in learners))
 steps = sum(l.num_timesteps for l in learners)
 print(json.dumps({{"rate": steps / seconds, "digest": digest.hexdigest()}}))
