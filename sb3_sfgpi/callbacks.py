@@ -291,8 +291,8 @@ class OLSCallback(BaseCallback):
         self.history = self.run_dir.read_history(state["iteration"])
         self.iteration = state["iteration"]
         if self.pooled is not None:
+            table = cast(TabularSFNetwork, self.record.networks[0])  # the size of every table of the run
             for iteration in range(1, self.iteration + 1):
-                table = cast(TabularSFNetwork, self.record.networks[0])
                 self.pooled.add_saved(self.run_dir.read_experience(iteration), table)
         self.model.num_timesteps = state["timesteps"]
         if state["next_weights"] is None:

@@ -39,7 +39,7 @@ TABULAR_LEARNER = {
     "optimistic_init": "rmax_1.25",
 }
 #: Whether runs with tables pool their replay across iterations and plan Π's SFs on it (:mod:`sb3_sfgpi.pooling`;
-#: docs: experiments/known_fronts: resource-gathering 0.944 ± 0.044 of the exact optimum without, 1.000 ± 0.000 with).
+#: it won on resource-gathering and changed nothing elsewhere: docs, experiments/known_fronts).
 TABULAR_POOL_REPLAY = True
 MLP_LEARNER = {
     "policy": "MlpPolicy",

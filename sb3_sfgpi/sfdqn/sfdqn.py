@@ -258,8 +258,9 @@ class SFDQN(OffPolicyAlgorithm):
     ) -> tuple[int, BaseCallback]:
         if reset_num_timesteps:
             self._plannings = 0
+        resets = reset_num_timesteps or self._last_obs is None  # when SB3's _setup_learn resets the env
         result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
-        if reset_num_timesteps or self._last_action_masks is None:
+        if resets:  # the masks of the observations the reset gave
             self._last_action_masks = self._masks_of(getattr(self.env, "reset_infos", []))
         return result
 
