@@ -145,6 +145,7 @@ def traffic() -> dict[str, Any]:
         "episode_metrics": [
             ["vehicle_waiting_time_mean", "mean vehicle waiting time [s]"],
             ["pedestrian_waiting_time_mean", "mean pedestrian waiting time [s]"],
+            ["co2_emitted_kg", "CO2 emitted [kg]"],
         ],
         "step_metrics": [
             ["vehicle_wait_total", "vehicle waiting time [s]"],

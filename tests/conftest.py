@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -18,6 +19,9 @@ from sb3_sfgpi.sfdqn import SFDQN, SFNetwork, TabularSFNetwork
 
 # The networks here are tiny: one thread per test process is faster, above all when pytest-xdist runs two.
 th.set_num_threads(1)
+# Ray starts its task workers at niceness 15: beside the other xdist process a sweep test's run then waits minutes
+# for the CPU (a checkpoint 140 s late instead of 18 s). Local Rays that tests start inherit this.
+os.environ.setdefault("RAY_worker_niceness", "0")
 
 #: Settings under which tabular SFDQN solves the Fig. 1 MOMDP (γ = 1) in about a second.
 FIG1_TABULAR_KWARGS: dict[str, Any] = dict(

@@ -15,7 +15,7 @@ from pettingzoo.test import parallel_api_test
 libsumo = pytest.importorskip("libsumo")
 traci = pytest.importorskip("traci")
 
-from sfgpi_envs.traffic import TrafficSignalEnv, run_program_episode  # noqa: E402
+from sfgpi_envs.traffic import EPISODE_METRIC_KEYS, TrafficSignalEnv, run_program_episode  # noqa: E402
 
 from sb3_sfgpi import MASFOLS, EvaluationConfig  # noqa: E402
 from sb3_sfgpi.cli import main  # noqa: E402
@@ -114,6 +114,9 @@ def test_queue_and_co2_rewards_are_what_sumo_measures(make_env, listen):
             assert infos[j]["co2_g"] == pytest.approx(rec.co2_mg[j] / 1000)
             prev[j] = rec.co2_mg[j]
     assert sum(rec.co2_mg.values()) > 0
+    episode = infos[env.possible_agents[0]]["episode"]  # the grid has no crossings: no pedestrians' metrics
+    assert episode["co2_emitted_kg"] == pytest.approx(sum(rec.co2_mg.values()) / 1e6, rel=1e-5)
+    assert set(episode) == set(EPISODE_METRIC_KEYS) | {"co2_emitted_kg"}
 
 
 @pytest.mark.parametrize(
@@ -258,6 +261,12 @@ def test_masfols_trains_on_the_grid_through_the_cli(tmp_path, capsys):
     assert checkpoint["n_policies"] == len(policy_set) == evaluation[-1]["n_policies"] >= 4
     assert main(["evaluate", str(out), "--w", "0.5", "0.5"]) == 0
     assert "objectives: vehicle_waiting, co2" in capsys.readouterr().out
+    output = tmp_path / "compare.json"  # the columns the grid has: vehicles' waiting and CO2, no pedestrians'
+    assert main(["compare", str(out), "--w", "1", "0", "--episodes", "1", "--workers", "0", "-o", str(output)]) == 0
+    compare = json.loads(output.read_text())
+    assert [key for key, _ in compare["episode_metrics"]] == ["vehicle_waiting_time_mean", "co2_emitted_kg"]
+    assert "| method | mean vehicle waiting time [s] | CO2 emitted [kg] |" in capsys.readouterr().out
+    assert all(row["episode_metrics"]["co2_emitted_kg"]["mean"] > 0 for row in compare["rows"])
 
 
 def test_the_cli_refuses_a_network_that_is_not_there(tmp_path, capsys):

@@ -14,7 +14,14 @@ The network is built from the XML sources in ``nets/`` by ``nets/build.py``.
 """
 
 from .baselines import PROGRAMS, run_program_episode
-from .env import ACTION_MODES, EPISODE_METRIC_KEYS, MDP_DEFAULTS, SIGNAL_CONTROLS, TrafficSignalEnv
+from .env import (
+    ACTION_MODES,
+    EPISODE_METRIC_KEYS,
+    MDP_DEFAULTS,
+    PEDESTRIAN_METRIC_KEYS,
+    SIGNAL_CONTROLS,
+    TrafficSignalEnv,
+)
 from .hooks import LightView, ObservationFunction, SumoRLObservation
 from .objectives import DEFAULT_OBJECTIVES, Objective
 from .objectives import MENU as OBJECTIVE_MENU
@@ -28,6 +35,7 @@ __all__ = [
     "CHANGE",
     "DEFAULT_OBJECTIVES",
     "EPISODE_METRIC_KEYS",
+    "PEDESTRIAN_METRIC_KEYS",
     "KEEP",
     "NETS_DIR",
     "NET_FILE",

@@ -80,15 +80,19 @@ EARLY_CHANGES = ("ignore", "defer")
 EPISODE_METRIC_KEYS = (
     "vehicle_waiting_time_total",
     "vehicle_waiting_time_mean",
-    "pedestrian_waiting_time_total",
-    "pedestrian_waiting_time_mean",
     "vehicles_departed",
     "vehicles_arrived",
-    "pedestrians_departed",
-    "pedestrians_arrived",
     "sim_time",
 )
-"""Keys of :meth:`TrafficSignalEnv.episode_metrics`."""
+"""Keys of :meth:`TrafficSignalEnv.episode_metrics` on every network."""
+
+PEDESTRIAN_METRIC_KEYS = (
+    "pedestrian_waiting_time_total",
+    "pedestrian_waiting_time_mean",
+    "pedestrians_departed",
+    "pedestrians_arrived",
+)
+"""Keys :meth:`TrafficSignalEnv.episode_metrics` adds on a network with signalised pedestrian crossings."""
 
 
 def _check_int(name: str, value: Any, low: int) -> int:
@@ -356,10 +360,12 @@ class TrafficSignalEnv(ParallelEnv):
         ]
         self._lookups = [self._programs[a].lookup() for a in self.possible_agents]
 
+    def _has_crossings(self) -> bool:
+        """Whether any light has a signalised pedestrian crossing."""
+        return any(lay.waiting_areas for lay in self.layouts.values())
+
     def _check_objectives(self) -> None:
-        if any(o.needs_pedestrians for o in self.objectives) and not any(
-            lay.waiting_areas for lay in self.layouts.values()
-        ):
+        if any(o.needs_pedestrians for o in self.objectives) and not self._has_crossings():
             raise ValueError(
                 f"objective 'pedestrian_waiting' needs signalised pedestrian crossings; the network {self.net_file} "
                 "has none at any traffic light"
@@ -655,27 +661,33 @@ class TrafficSignalEnv(ParallelEnv):
         * ``vehicle_waiting_time_total``: waiting time [s] of all vehicles on the incoming lanes of the
           intersections (where all waiting happens in this network), summed over vehicles;
         * ``vehicle_waiting_time_mean``: that total divided by ``vehicles_departed``;
-        * ``pedestrian_waiting_time_total`` / ``_mean``: the same for pedestrians (time standing on the
-          approaches of the crossings), divided by ``pedestrians_departed``;
-        * ``vehicles_departed``, ``vehicles_arrived``, ``pedestrians_departed``, ``pedestrians_arrived``;
-        * ``sim_time``: simulated seconds since ``begin_time``.
+        * ``vehicles_departed``, ``vehicles_arrived``; ``sim_time``: simulated seconds since ``begin_time``;
+        * on a network with signalised pedestrian crossings only (elsewhere no pedestrian can wait at a light, and a
+          mean of 0 s would read as a result): ``pedestrian_waiting_time_total`` / ``_mean``, the same for
+          pedestrians (time standing on the approaches of the crossings) divided by ``pedestrians_departed``, and
+          ``pedestrians_departed``, ``pedestrians_arrived``;
+        * with the ``"co2"`` objective only: ``co2_emitted_kg``, the CO2 the vehicles on the incoming lanes emitted.
 
-        :return: the metrics (keys :data:`EPISODE_METRIC_KEYS`).
+        :return: the metrics (keys :data:`EPISODE_METRIC_KEYS`, :data:`PEDESTRIAN_METRIC_KEYS` and ``co2_emitted_kg``
+            as above).
         """
         veh = sum(last.vehicle_wait_episode for last in self._last)
-        ped = sum(last.pedestrian_wait_episode for last in self._last)
         dep_v, arr_v, dep_p, arr_p = self._counts
-        return {
+        metrics = {
             "vehicle_waiting_time_total": float(veh),
             "vehicle_waiting_time_mean": float(veh / dep_v) if dep_v else 0.0,
-            "pedestrian_waiting_time_total": float(ped),
-            "pedestrian_waiting_time_mean": float(ped / dep_p) if dep_p else 0.0,
             "vehicles_departed": float(dep_v),
             "vehicles_arrived": float(arr_v),
-            "pedestrians_departed": float(dep_p),
-            "pedestrians_arrived": float(arr_p),
             "sim_time": float(self._time - self.begin_time),
         }
+        if self._has_crossings():
+            ped = sum(last.pedestrian_wait_episode for last in self._last)
+            metrics["pedestrian_waiting_time_total"] = float(ped)
+            metrics["pedestrian_waiting_time_mean"] = float(ped / dep_p) if dep_p else 0.0
+            metrics["pedestrians_departed"], metrics["pedestrians_arrived"] = float(dep_p), float(arr_p)
+        if "co2" in self.objective_names:
+            metrics["co2_emitted_kg"] = sum(last.co2_mg for last in self._last) / 1e6
+        return metrics
 
     # ------------------------------------------------------------------------------------- misc
     def render(self) -> None:

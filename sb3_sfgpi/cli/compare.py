@@ -97,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
     results = _run(planned, preset, config["env_kwargs"], gamma, workers)
     for (header, job), result in zip(planned, results, strict=True):
         compare["rows"].append({**header, **summarize_row(result, job.weights, compare)})
+    reported = {key for row in compare["rows"] for key in row["episode_metrics"]}  # no pedestrians' without crossings
+    compare["episode_metrics"] = [metric for metric in compare["episode_metrics"] if metric[0] in reported]
     output = args.output or run_dir.compare_file
     atomic_write_json(output, compare)
     print(format_comparison(compare))
