@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import io
+import zipfile
 
 import numpy as np
 import pytest
@@ -40,6 +42,29 @@ def test_save_load_round_trip(tmp_path, policy):
             )
     # Training can go on after loading.
     loaded.learn(8)
+
+
+def test_a_tabular_model_keeps_its_learning_rate_and_loads_one_saved_with_sgd(tmp_path):
+    """The table's optimizer (:class:`StepSize`) saves its rate in SGD's layout: zips saved when a torch SGD held the
+    rate load, and a damaged state is refused in one line."""
+    model = SFDQN("TabularPolicy", Fig1MOMDP(), weights=[0.8, 0.2], learning_rate=0.3, learning_starts=0, seed=0)
+    model.save(tmp_path / "model.zip")
+    assert SFDQN.load(tmp_path / "model.zip").policy.optimizer.param_groups[0]["lr"] == pytest.approx(0.3)
+    sgd = th.optim.SGD([th.empty(0, requires_grad=True)], lr=0.25)  # what held the rate before
+    for state, rate in ((sgd.state_dict(), 0.25), ({"state": {}, "param_groups": [{"params": [0]}]}, None)):
+        with zipfile.ZipFile(tmp_path / "model.zip") as source, zipfile.ZipFile(tmp_path / "old.zip", "w") as old:
+            for item in source.infolist():
+                if item.filename == "policy.optimizer.pth":
+                    buffer = io.BytesIO()
+                    th.save(state, buffer)
+                    old.writestr(item, buffer.getvalue())
+                else:
+                    old.writestr(item, source.read(item))
+        if rate is None:
+            with pytest.raises(ValueError, match="one parameter group with an 'lr'"):
+                SFDQN.load(tmp_path / "old.zip")
+        else:
+            assert SFDQN.load(tmp_path / "old.zip").policy.optimizer.param_groups[0]["lr"] == rate
 
 
 def test_logger_records_the_scalarised_and_per_objective_returns(tmp_path, make_tabular_sfdqn):

@@ -227,6 +227,37 @@ class SFDQNPolicy(BasePolicy):
 MlpPolicy = SFDQNPolicy
 
 
+class StepSize:
+    """
+    The optimizer of a table: the learning rate ``α`` in ``param_groups``, as SB3's schedules set it.
+
+    :meth:`TabularPolicy.td_update` updates the table in place, so there is nothing to optimise; a torch optimizer
+    would only hold ``α``, and building one imports ``torch._dynamo`` and SymPy (68 MB and 1.5 s of every tabular
+    run). The state dict has ``torch.optim.SGD``'s layout: models saved with either load with either.
+
+    :param params: ignored (a table has no torch parameters), as an optimizer's first argument
+    :param lr: the learning rate ``α``
+    """
+
+    def __init__(self, params: Any = (), lr: float = 0.1) -> None:
+        self.param_groups = [{"lr": float(lr), "params": []}]  # SB3's load reads the number of params
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"state": {}, "param_groups": [{"lr": self.param_groups[0]["lr"], "params": [0]}]}
+
+    def load_state_dict(self, state_dict: dict[str, Any], strict: bool = True) -> None:
+        """Read ``α`` from a state dict of this class or of a torch optimizer with one parameter group."""
+        try:
+            (group,) = state_dict["param_groups"]
+            lr = float(group["lr"])
+        except (KeyError, TypeError, ValueError) as error:
+            message = f"a tabular policy's optimizer state needs one parameter group with an 'lr': {error}"
+            raise ValueError(message) from None
+        if not np.isfinite(lr) or lr < 0:
+            raise ValueError(f"a tabular policy's learning rate must be a finite number >= 0, got {lr}")
+        self.param_groups[0]["lr"] = lr
+
+
 class TabularPolicy(SFDQNPolicy):
     """
     Tabular successor features: multi-objective Q-learning with experience replay.
@@ -245,8 +276,8 @@ class TabularPolicy(SFDQNPolicy):
     :param lr_schedule: Learning rate schedule (``α``)
     :param reward_dim: Number of objectives ``d``
     :param target_network: Keep a separate, periodically copied target table
-    :param optimizer_class: The optimizer, SGD by default (it holds the learning rate ``α``; the update itself
-        is done in place by :meth:`td_update`)
+    :param optimizer_class: What holds the learning rate ``α`` (:class:`StepSize` by default; a torch optimizer
+        class also serves, never stepped: :meth:`td_update` updates the table in place)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate
     """
 
@@ -260,7 +291,7 @@ class TabularPolicy(SFDQNPolicy):
         lr_schedule: Schedule,
         reward_dim: int,
         target_network: bool = False,
-        optimizer_class: type[th.optim.Optimizer] = th.optim.SGD,
+        optimizer_class: type[th.optim.Optimizer] | type[StepSize] = StepSize,
         optimizer_kwargs: dict[str, Any] | None = None,
     ):
         self.target_network = target_network
@@ -282,7 +313,7 @@ class TabularPolicy(SFDQNPolicy):
         else:
             self.sf_net_target = self.sf_net
         # The optimizer only holds α, which SB3's schedules set in its param groups; the table (numpy) has no torch
-        # parameters and the optimizer refuses an empty list, so it gets an empty placeholder, never stepped.
+        # parameters and a torch optimizer refuses an empty list, so it gets an empty placeholder, never stepped.
         self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
             [th.empty(0, requires_grad=True)], lr=lr_schedule(1), **self.optimizer_kwargs
         )
