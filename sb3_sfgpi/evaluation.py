@@ -36,8 +36,8 @@ from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
 Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
 
 
-def _no_actions(observations: dict[str, Any]) -> dict[str, Any]:
-    """No action for anyone: the env's own controller acts (e.g. SUMO's fixed-time or actuated programs)."""
+def _no_actions(observations: dict[str, Any], action_masks: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """No action for anyone, whatever the masks: the env's own controller acts (e.g. SUMO's programs)."""
     return {}
 
 

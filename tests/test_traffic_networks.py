@@ -19,6 +19,7 @@ from sfgpi_envs.traffic import EPISODE_METRIC_KEYS, TrafficSignalEnv, run_progra
 
 from sb3_sfgpi import MASFOLS, EvaluationConfig  # noqa: E402
 from sb3_sfgpi.cli import main  # noqa: E402
+from sb3_sfgpi.evaluation import EvaluationJob, run_job  # noqa: E402
 from sb3_sfgpi.gpi import GPIPolicy  # noqa: E402
 
 _SPEC = importlib.util.find_spec("sumo_rl")  # located, not imported: importing sumo_rl needs SUMO_HOME
@@ -241,6 +242,13 @@ def test_padded_phase_actions_are_masked_and_no_masked_green_is_ever_shown():
             assert masks[np.arange(3), actions].all()
     finally:
         masfols.close()
+    for program in ("max-pressure", "actuated"):  # compare's baselines on the masked env (they send no actions)
+        baseline = TrafficSignalEnv(**COLOGNE3, observation_fn="padded", action_mode="phase", signal_control=program)
+        try:
+            result = run_job(baseline, EvaluationJob(1000, None, 1, None, record_infos=True), gamma=0.99)
+            assert set(result.final_infos[0]) == set(env.possible_agents)
+        finally:
+            baseline.close()
 
 
 def test_masfols_trains_on_the_grid_through_the_cli(tmp_path, capsys):
