@@ -186,7 +186,8 @@ class MultiAgentRunner:
                         f"MA-SFOLS shares policies between agents: all agents need the same spaces, but the "
                         f"{kind.replace('_', ' ')} of {agent!r} is {getattr(env, kind)(agent)} and of {first!r} "
                         f"{getattr(env, kind)(first)}; pad them into one layout that means the same at every agent "
-                        "(TrafficSignalEnv: observation_fn='padded'; Discrete actions: sb3_sfgpi.PadActions(env))"
+                        "(TrafficSignalEnv: observation_fn='padded'; Discrete actions: sb3_sfgpi.PadActions(env)), "
+                        "and with sharing='shared' every policy learns at every agent"
                     )
         if not isinstance(env.action_space(first), spaces.Discrete):
             raise ValueError(f"SFDQN needs Discrete actions, got {env.action_space(first)}")
