@@ -71,6 +71,23 @@ def sb3_log_folder(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
 
 
 @pytest.fixture
+def cli_exit(capsys: pytest.CaptureFixture[str]) -> Callable[[list[str]], tuple[int, str]]:
+    """``cli_exit(argv)``: the exit code and stderr of ``sb3-sfgpi ARGV`` run in this process (as the console script
+    does: ``sys.exit(main())``; argparse's refusals exit), without a fresh interpreter's 3 s of imports."""
+    from sb3_sfgpi.cli import main
+
+    def run(argv: list[str]) -> tuple[int, str]:
+        capsys.readouterr()
+        try:
+            code = main(argv)
+        except SystemExit as error:
+            code = error.code if isinstance(error.code, int) else 1
+        return code, capsys.readouterr().err
+
+    return run
+
+
+@pytest.fixture
 def make_fig1_env() -> Callable[..., Fig1MOMDP]:
     """Factory of the Fig. 1 MOMDP: ``make_fig1_env(one_hot=False)``."""
     return Fig1MOMDP

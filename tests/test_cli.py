@@ -163,12 +163,22 @@ def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys)
         (["plot", "NOT_A_RUN", "-o", "x.png"], "not a run directory"),
     ],
 )
-def test_bad_arguments_give_one_line_and_exit_code_2(run_dir, tmp_path, argv, message):
+def test_bad_arguments_give_one_line_and_exit_code_2(run_dir, tmp_path, cli_exit, argv, message):
     argv = [str(run_dir) if a == "RUN" else str(tmp_path / a) if a == "NOT_A_RUN" else a for a in argv]
-    result = subprocess.run([sys.executable, "-m", "sb3_sfgpi.cli", *argv], capture_output=True, text=True)
-    assert result.returncode == 2
-    assert message in result.stderr and "Traceback" not in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1
+    code, stderr = cli_exit(argv)
+    assert code == 2
+    assert message in stderr and "Traceback" not in stderr
+    assert len(stderr.strip().splitlines()) == 1
+
+
+def test_the_console_command_refuses_in_one_line_with_exit_code_2(run_dir):
+    """The same through a fresh interpreter, as a user's shell runs it (the cases above run in this process)."""
+    result = subprocess.run(
+        [sys.executable, "-m", "sb3_sfgpi.cli", "evaluate", str(run_dir), "--w", "1", "-1", "0"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and "non-negative" in result.stderr
 
 
 @pytest.mark.parametrize(

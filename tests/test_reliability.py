@@ -74,12 +74,11 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
         (["--set", "pool_replay=true"], "pool_replay needs a single-agent env, not 2 agents"),
     ],
 )
-def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, argv, message):
-    command = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(tmp_path / "run"), *argv]
-    result = subprocess.run(command, capture_output=True, text=True)
-    assert result.returncode == 2
-    assert message in result.stderr and "Traceback" not in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1
+def test_train_refuses_zero_budgets_and_bad_learner_options(tmp_path, cli_exit, argv, message):
+    code, stderr = cli_exit(["train", "four-room", "--out", str(tmp_path / "run"), *argv])
+    assert code == 2
+    assert message in stderr and "Traceback" not in stderr
+    assert len(stderr.strip().splitlines()) == 1
 
 
 def test_train_refuses_a_run_directory_it_cannot_create(tmp_path):

@@ -121,7 +121,7 @@ def test_the_command_line_trains_an_mo_gymnasium_id(tmp_path):
 @pytest.mark.parametrize(
     "domain, message", [("no-such-env-v0", "unknown domain 'no-such-env-v0'"), ("CartPole-v1", "reward_space")]
 )
-def test_the_command_line_refuses_ids_it_cannot_train(tmp_path, domain, message):
-    result = cli("train", domain, "--out", str(tmp_path / "x"))
-    assert result.returncode == 2 and message in result.stderr and len(result.stderr.strip().splitlines()) == 1
+def test_the_command_line_refuses_ids_it_cannot_train(tmp_path, cli_exit, domain, message):
+    code, stderr = cli_exit(["train", domain, "--out", str(tmp_path / "x")])
+    assert code == 2 and message in stderr and len(stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x").exists()

@@ -160,13 +160,21 @@ def test_train_traffic_workers_crash_and_resume(tmp_path, monkeypatch, capsys):
 def test_fixed_weight_learners_compare_and_plots(tmp_path):
     masfols, fixed = tmp_path / "masfols", tmp_path / "fixed"
     assert main(["train", "traffic", *TINY, *ALL_JOIN, "--set", "eval_workers=0", "--out", str(masfols)]) == 0
-    assert main(["train", "traffic", *TINY, "--algo", "fixed", "--w", "0.4", "0.6", "--out", str(fixed)]) == 0
+    in_process = ["--set", "eval_workers=0"]  # workers: test_parallel_evaluation_equals_in_process
+    assert (
+        main(["train", "traffic", *TINY, *in_process, "--algo", "fixed", "--w", "0.4", "0.6", "--out", str(fixed)]) == 0
+    )
     config = json.loads((fixed / "run.json").read_text())
     # the same steps per agent as an MA-SFOLS run of this budget, in one iteration
     assert (config["iterations"], config["steps_per_iteration"], config["weights"]) == (1, 32, [0.4, 0.6])
     taken = json.loads((masfols / "checkpoint.json").read_text())["timesteps"]  # OLS may end before the cap
     budget = ["--budget-from", str(masfols), "--out", str(tmp_path / "budget"), "--iterations", "1"]
-    assert main(["train", "traffic", "--algo", "fixed", "--w", "1", "0", *budget, "--steps-per-iteration", "1"]) == 0
+    assert (
+        main(
+            ["train", "traffic", "--algo", "fixed", "--w", "1", "0", *budget, *in_process, "--steps-per-iteration", "1"]
+        )
+        == 0
+    )
     assert json.loads((tmp_path / "budget" / "run.json").read_text())["steps_per_iteration"] == taken
     policy_set = GPIPolicy.load(fixed / "policy_set")
     assert [info.agent for info in policy_set.infos] == ["J1", "J2", "J3"]
@@ -175,7 +183,7 @@ def test_fixed_weight_learners_compare_and_plots(tmp_path):
 
     output = tmp_path / "compare.json"
     argv = ["compare", str(masfols), "--fixed", str(fixed), "--w", "1", "0", "--w", "0", "1", "--episodes", "2"]
-    assert main([*argv, "--workers", "1", "-o", str(output)]) == 0
+    assert main([*argv, "--workers", "0", "-o", str(output)]) == 0
     compare = json.loads(output.read_text())
     labels = [row["label"] for row in compare["rows"]]
     assert labels == [
