@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import FEW_VALIDATION
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -38,7 +39,7 @@ JSON = st.recursive(
 def run_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fuzz") / "run"
     argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--set", "n_test_weights=2"]
-    assert main([*argv, "--no-progress", "--out", str(out)]) == 0
+    assert main([*argv, *FEW_VALIDATION, "--no-progress", "--out", str(out)]) == 0
     return out
 
 
