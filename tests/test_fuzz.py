@@ -120,13 +120,9 @@ def test_damaged_manifests_load_or_raise_corrupt_policy_set_error(run_dir, tmp_p
     seed=st.integers(-(2**33), 2**33),
     gpi_set=st.sampled_from(["all", "ccs"]),
 )
-def test_evaluate_arguments_work_or_give_one_line(run_dir, capsys, w, episodes, seed, gpi_set):
+def test_evaluate_arguments_work_or_give_one_line(run_dir, cli_exit, w, episodes, seed, gpi_set):
     argv = ["evaluate", str(run_dir), "--w", *map(str, w), "--episodes", str(episodes), "--seed", str(seed)]
-    try:
-        code = main([*argv, "--gpi-set", gpi_set])
-    except SystemExit as exit:  # argparse: a malformed command line
-        code = exit.code
-    error = capsys.readouterr().err
+    code, error = cli_exit([*argv, "--gpi-set", gpi_set])  # argparse exits on a malformed command line
     assert code in (0, 2) and "Traceback" not in error
     assert code == 0 or error.strip()
 
@@ -156,16 +152,12 @@ TRAIN_OPTION = st.one_of(
 
 @FUZZ
 @given(options=st.lists(TRAIN_OPTION, max_size=4))
-def test_train_arguments_work_or_give_one_line(tmp_path, capsys, options):
+def test_train_arguments_work_or_give_one_line(tmp_path, cli_exit, options):
     argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "60", "--set", "n_test_weights=1"]
     argv += ["--set", "validation_weights=0"]  # what is fuzzed is the arguments, not validation (an option may set it)
     argv += [part for option in options for part in option]  # later options override the small defaults
     out = tmp_path / "run"
     shutil.rmtree(out, ignore_errors=True)
-    try:
-        code = main([*argv, "--no-progress", "--out", str(out)])
-    except SystemExit as exit:  # argparse: a malformed command line
-        code = exit.code
-    error = capsys.readouterr().err
+    code, error = cli_exit([*argv, "--no-progress", "--out", str(out)])  # argparse exits on a malformed line
     assert code in (0, 2) and "Traceback" not in error
     assert code == 0 or error.strip()

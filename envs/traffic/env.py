@@ -335,19 +335,12 @@ class TrafficSignalEnv(ParallelEnv):
             else self.observation_fn.space(lay, n_greens[a])
             for a, lay in self.layouts.items()
         }
+        most = max(n_greens.values())
+        padded = self.action_mode == "phase" and isinstance(self.observation_fn, PaddedObservation)
         #: the greens a light has among the padded ``Discrete(G)`` (phase actions of padded lights), else None
-        self._action_masks = (
-            {a: np.arange(max(n_greens.values())) < n for a, n in n_greens.items()}
-            if self.action_mode == "phase" and isinstance(self.observation_fn, PaddedObservation)
-            else None
-        )
-        if self.action_mode == "change":
-            self.action_spaces = {a: spaces.Discrete(2) for a in self.possible_agents}
-        else:  # the green to show: a light's own, or padded to the most greens (masked)
-            padded = self._action_masks is not None
-            self.action_spaces = {
-                a: spaces.Discrete(max(n_greens.values()) if padded else n) for a, n in n_greens.items()
-            }
+        self._action_masks = {a: np.arange(most) < n for a, n in n_greens.items()} if padded else None
+        change = self.action_mode == "change"  # keep/change; else the green: a light's own, or the most (masked)
+        self.action_spaces = {a: spaces.Discrete(2 if change else most if padded else n) for a, n in n_greens.items()}
         d = len(self.objectives)
         self.reward_spaces = {
             a: spaces.Box(-np.inf, np.inf, shape=(d,), dtype=np.float32) for a in self.possible_agents

@@ -31,7 +31,7 @@ def info_mask(info: Mapping[str, Any], n_actions: int, where: str = "the env") -
     if mask is None:
         return None
     array = np.asarray(mask)
-    if array.shape != (n_actions,) or array.dtype.kind not in "biuf" or not np.isin(array, (0, 1)).all():
+    if array.shape != (n_actions,) or not _zeros_and_ones(array):
         raise ValueError(f"{where}'s info['{ACTION_MASK}'] must be {n_actions} entries of 0 or 1, got {mask!r}")
     if not array.any():
         raise ValueError(f"{where}'s info['{ACTION_MASK}'] allows no action: {mask!r}")
@@ -62,7 +62,7 @@ def checked_masks(action_masks: Any, batch: int, n_actions: int) -> np.ndarray |
     array = np.asarray(action_masks)
     if array.ndim == 1:
         array = array[None]
-    if array.shape != (batch, n_actions) or array.dtype.kind not in "biuf" or not np.isin(array, (0, 1)).all():
+    if array.shape != (batch, n_actions) or not _zeros_and_ones(array):
         raise ValueError(
             f"action_masks must be 0/1 of shape ({batch}, {n_actions}) (one row per observation), got "
             f"shape {array.shape}"
@@ -70,6 +70,11 @@ def checked_masks(action_masks: Any, batch: int, n_actions: int) -> np.ndarray |
     if not array.any(axis=1).all():
         raise ValueError("action_masks allows no action for some observation")
     return array.astype(bool)
+
+
+def _zeros_and_ones(array: np.ndarray) -> bool:
+    """Whether every entry of a numeric (or boolean) array is 0 or 1."""
+    return array.dtype.kind in "biuf" and bool(np.isin(array, (0, 1)).all())
 
 
 def masked(q_values: np.ndarray, masks: np.ndarray | None) -> np.ndarray:
