@@ -94,7 +94,7 @@ def test_integer_observations_are_stored_in_the_smallest_dtype_and_read_back_unc
     assert buffer.observations.dtype == buffer.next_observations.dtype == dtype
     space.seed(0)
     observations = [space.sample() for _ in range(21)]
-    for obs, next_obs in zip(observations, observations[1:]):
+    for obs, next_obs in zip(observations[:-1], observations[1:], strict=True):
         buffer.add(obs[None], next_obs[None], np.array([[1]]), np.ones((1, 2)), np.array([0.0]), [{}])
     obs, _, next_obs, _, _ = buffer.stored_arrays()
     assert obs.dtype == next_obs.dtype == space.dtype  # read back as the space's

@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-import torch as th
 from momdp import N_ACTIONS, N_STATES, REWARD_DIM
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv
 
