@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_sfgpi.sfdqn import TabularSFNetwork
+if TYPE_CHECKING:  # imported where used: env copies' processes import this module without torch
+    from sb3_sfgpi.sfdqn import TabularSFNetwork
 
 #: REWARDS[state, action] = (objective 0, objective 1); actions A, B, C.
 REWARDS = np.array(
@@ -150,6 +152,8 @@ def rollout_return(act: Callable[[object], int], gamma: float = 1.0, one_hot: bo
 
 def exact_tabular_network(actions: Sequence[int], gamma: float = 1.0) -> TabularSFNetwork:
     """A tabular SF network of the Fig. 1 MOMDP holding the exact ``ψ^π`` of the deterministic policy ``actions``."""
+    from sb3_sfgpi.sfdqn import TabularSFNetwork
+
     net = TabularSFNetwork(spaces.Discrete(N_STATES), spaces.Discrete(N_ACTIONS), REWARD_DIM)
     net.table.set_dense(successor_features(actions, gamma).reshape(N_STATES, -1))
     return net

@@ -7,14 +7,17 @@ starts agent ``i`` at state ``i``, so that agents finish one after the other.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from gymnasium import spaces
 from momdp import N_STATES, REWARDS, optimal_value
 from pettingzoo import ParallelEnv
 
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+if TYPE_CHECKING:  # imported where used: env copies' processes import this module without torch
+    from sb3_sfgpi.multiagent import MultiAgentRunner
 
-__all__ = ["CHAIN_LEARNER", "ParallelChainEnv", "make_chain_runner", "optimal_value"]
+__all__ = ["CHAIN_LEARNER", "FailingChain", "ParallelChainEnv", "make_chain_runner", "optimal_value"]
 
 #: Tabular SFDQN settings that solve the chain in a few hundred steps per agent.
 CHAIN_LEARNER = dict(
@@ -78,8 +81,20 @@ class ParallelChainEnv(ParallelEnv):
         return obs, rewards, terminations, truncations, infos
 
 
+class FailingChain(ParallelChainEnv):
+    """A chain whose simulator breaks at its third step (here, not in a test module: its copies' processes import
+    this light module)."""
+
+    def step(self, actions):
+        if self.steps == 2:
+            raise ValueError("the simulator broke")
+        return super().step(actions)
+
+
 def make_chain_runner(n_agents: int = 2, seed: int = 0, max_steps: int | None = None) -> MultiAgentRunner:
     """Independent tabular learners (:data:`CHAIN_LEARNER`) on a :class:`ParallelChainEnv`."""
+    from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+
     return MultiAgentRunner(
         ParallelChainEnv(n_agents, max_steps=max_steps), default_learner_factory(**CHAIN_LEARNER), seed=seed
     )

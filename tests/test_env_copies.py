@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 from momdp import REWARDS, TERMINAL
-from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
+from parallel_chain import CHAIN_LEARNER, FailingChain, ParallelChainEnv, optimal_value
 
 from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.cli import main
@@ -16,15 +16,6 @@ from sb3_sfgpi.common.env_copies import EnvCopies
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
 
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
-
-
-class FailingChain(ParallelChainEnv):
-    """A chain whose simulator breaks at its third step."""
-
-    def step(self, actions):
-        if self.steps == 2:
-            raise ValueError("the simulator broke")
-        return super().step(actions)
 
 
 def test_every_copy_feeds_every_learner_a_slot_per_agent():

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -96,6 +98,15 @@ def test_numpy_scalars_are_accepted_as_options():
     assert model.gamma == pytest.approx(0.9) and model.batch_size == 4
 
 
+@pytest.fixture(scope="module")
+def one_iteration_run(tmp_path_factory) -> Path:
+    """A finished one-iteration run of 150 steps (tests resume copies of it)."""
+    out = tmp_path_factory.mktemp("trained") / "run"
+    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "150", "--set", "n_test_weights=2"]
+    assert main([*train, *FEW_VALIDATION, "--no-progress", "--out", str(out)]) == 0
+    return out
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
@@ -113,10 +124,9 @@ def test_numpy_scalars_are_accepted_as_options():
         (["--set", "eval_episodes=2"], "--set eval_episodes=2 would change the run's eval_episodes (1)"),
     ],
 )
-def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, message, capsys):
+def test_resume_refuses_options_that_would_change_the_run(one_iteration_run, tmp_path, argv, message, capsys):
     out = str(tmp_path / "run")
-    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "150", "--set", "n_test_weights=2"]
-    assert main([*train, *FEW_VALIDATION, "--no-progress", "--out", out]) == 0
+    shutil.copytree(one_iteration_run, out)
     resume = ["train", "four-room", "--iterations", "2", "--no-progress", "--out", out, "--resume"]
     assert main([*resume, *argv]) == 2
     assert message in capsys.readouterr().err
@@ -126,9 +136,8 @@ def test_resume_refuses_options_that_would_change_the_run(tmp_path, argv, messag
 def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
     out = tmp_path / "run"
     command = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(out), "--no-progress"]
-    process = subprocess.Popen(
-        [*command, "--iterations", "1000", "--steps-per-iteration", "200"], stderr=subprocess.PIPE, text=True
-    )
+    budget = ["--iterations", "1000", "--steps-per-iteration", "200", "--set", "n_test_weights=2", *FEW_VALIDATION]
+    process = subprocess.Popen([*command, *budget], stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not (out / "checkpoint.json").exists() and time.monotonic() < deadline:
         time.sleep(0.2)
@@ -141,10 +150,11 @@ def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
 
 
 def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_path):
+    run = ["train", "four-room", "--iterations", "3", "--steps-per-iteration", "300", "--set", "n_test_weights=2"]
+    run += [*FEW_VALIDATION, "--no-progress"]
+
     def train(out, timeout=None):
-        argv = ["train", "four-room", "--iterations", "3", "--steps-per-iteration", "300", "--set", "n_test_weights=2"]
-        argv += FEW_VALIDATION
-        argv += ["--out", str(out), "--no-progress", *(["--resume"] if (out / "run.json").exists() else [])]
+        argv = [*run, "--out", str(out), *(["--resume"] if (out / "run.json").exists() else [])]
         process = subprocess.Popen([sys.executable, "-m", "sb3_sfgpi.cli", *argv], stdout=subprocess.DEVNULL)
         try:
             return process.wait(timeout)
@@ -152,7 +162,7 @@ def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_pat
             process.kill()  # SIGKILL: no handler runs
             return process.wait()
 
-    assert train(tmp_path / "whole") == 0
+    assert main([*run, "--out", str(tmp_path / "whole")]) == 0  # in this process: never killed
     cut, kills = tmp_path / "cut", 0
     for delay in np.random.default_rng(12).uniform(3, 9, size=4):
         kills += train(cut, timeout=delay) != 0
@@ -232,19 +242,19 @@ def small_disk(tmp_path):
     subprocess.run(["umount", "-l", str(mount_point)], check=True)
 
 
-def test_a_full_disk_stops_training_in_one_line_and_the_checkpoint_survives(small_disk):
+def test_a_full_disk_stops_training_in_one_line_and_the_checkpoint_survives(small_disk, cli_exit):
     out = small_disk / "run"
     # the disk is what is tested, not policy validation (off: its 100 weights' rollouts are most of a short run)
-    train = [sys.executable, "-m", "sb3_sfgpi.cli", "train", "four-room", "--out", str(out), "--no-progress",
-             "--set", "validation_weights=0", "--set", "prune=false"]  # fmt: skip
+    train = ["train", "four-room", "--out", str(out), "--no-progress", "--set", "validation_weights=0",
+             "--set", "prune=false"]  # fmt: skip
     budget = ["--steps-per-iteration", "150", "--set", "n_test_weights=2"]
-    assert subprocess.run([*train, *budget, "--iterations", "1"], capture_output=True).returncode == 0
+    assert cli_exit([*train, *budget, "--iterations", "1"])[0] == 0
     filler = small_disk / "filler"
     subprocess.run(["dd", "if=/dev/zero", f"of={filler}", "bs=64k"], capture_output=True)  # ends at ENOSPC
-    full = subprocess.run([*train, "--iterations", "2", "--resume"], capture_output=True, text=True)
-    assert full.returncode == 1 and "Traceback" not in full.stderr and len(full.stderr.strip().splitlines()) == 1
-    assert "No space left on device" in full.stderr
-    assert f"cannot write {out / 'run.json'}" in full.stderr and "it is as it was" in full.stderr  # the first write
+    code, stderr = cli_exit([*train, "--iterations", "2", "--resume"])
+    assert code == 1 and "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1
+    assert "No space left on device" in stderr
+    assert f"cannot write {out / 'run.json'}" in stderr and "it is as it was" in stderr  # the first write
     filler.unlink()
-    assert subprocess.run([*train, "--iterations", "2", "--resume"], capture_output=True).returncode == 0
+    assert cli_exit([*train, "--iterations", "2", "--resume"])[0] == 0
     assert json.loads((out / "checkpoint.json").read_text())["iteration"] == 2

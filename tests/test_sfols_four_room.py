@@ -20,7 +20,9 @@ from sb3_sfgpi.ols import OLS
 
 #: 5 x 7 cells, two rooms joined by two doors; objects of the three types, the goal in the top right corner.
 MAZE = ["3..X.1G", "...X...", "2.....2", "...X...", "_..X..3"]
-GAMMA, ITERATIONS, STEPS = 0.95, 6, 10_000
+#: Steps per policy: with 6,000 GPI is exact from the 4th iteration on (4,000 and 5,000 reach it too, 10,000 ends at
+#: 0.9986 of it, 3,000 at 0.988: below the threshold).
+GAMMA, ITERATIONS, STEPS = 0.95, 6, 6_000
 TEST_WEIGHTS = np.random.default_rng(0).dirichlet(np.ones(3), size=8)
 
 

@@ -7,6 +7,7 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import FEW_VALIDATION
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from momdp import REWARDS, TERMINAL
@@ -137,7 +138,8 @@ def test_bad_sharing_options_are_refused():
 def test_cli_trains_with_sharing_and_refuses_to_change_it_on_resume(tmp_path):
     out = tmp_path / "fr"
     train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--no-progress"]
-    assert main([*train, "--set", "sharing=shared", "--out", str(out)]) == 0
+    small = ["--set", "n_test_weights=2", *FEW_VALIDATION]  # sharing is tested, not validation
+    assert main([*train, "--set", "sharing=shared", *small, "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["sharing"] == "shared"
     assert json.loads((out / "evaluation.json").read_text())[0]["weights_trained"].keys() == {SHARED}
     train[train.index("--iterations") + 1] = "2"

@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import functools
 import json
-import subprocess
-import sys
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 from sb3_sfgpi import MASFOLS, SFDQN, EvaluationConfig, GPIPolicy
+from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.single_agent import AGENT, SingleAgentParallelEnv
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.sfdqn.options import optimistic_value
@@ -100,17 +99,12 @@ def test_copies_of_a_gymnasium_env_train_in_their_processes():
     assert model.runner.learners[AGENT].num_timesteps == 800  # two copies, 400 joint steps
 
 
-def cli(*argv: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "sb3_sfgpi.cli", *argv], capture_output=True, text=True)
-
-
-def test_the_command_line_trains_an_mo_gymnasium_id(tmp_path):
+def test_the_command_line_trains_an_mo_gymnasium_id(tmp_path, capsys):
     out = tmp_path / "dst"
-    trained = cli("train", DST, "--iterations", "2", "--steps-per-iteration", "3000", "--out", str(out))
-    assert trained.returncode == 0, trained.stderr
-    assert trained.stdout.startswith(f"sb3-sfgpi train {DST}: ma-sfols, seed 0")
-    evaluated = cli("evaluate", str(out), "--w", "0.3", "0.7")
-    assert evaluated.returncode == 0 and "agent_0: return" in evaluated.stdout
+    assert main(["train", DST, "--iterations", "2", "--steps-per-iteration", "3000", "--out", str(out)]) == 0
+    assert capsys.readouterr().out.startswith(f"sb3-sfgpi train {DST}: ma-sfols, seed 0")
+    assert main(["evaluate", str(out), "--w", "0.3", "0.7"]) == 0
+    assert "agent_0: return" in capsys.readouterr().out
     policy_set = GPIPolicy.load(out / "policy_set")
     assert policy_set.reward_dim == 2 and len(policy_set) >= 1
     # the tabular preset pools its replay (docs: known fronts): what each iteration added is kept for resume

@@ -17,8 +17,9 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_sfgpi.cli.errors import UsageError
+from sb3_sfgpi.common.reward_space import env_reward_dim
 from sb3_sfgpi.common.single_agent import SingleAgentParallelEnv
-from sb3_sfgpi.common.vec_env import env_reward_dim, import_registering_package
+from sb3_sfgpi.common.vec_env import import_registering_package
 
 #: Packages whose import registers multi-objective ids in Gymnasium's registry (imported when installed).
 REGISTERING_PACKAGES = ("mo_gymnasium",)

@@ -10,7 +10,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from sb3_sfgpi.common.vec_env import env_reward_dim
+from sb3_sfgpi.common.reward_space import env_reward_dim
 
 #: The name of the one agent.
 AGENT = "agent_0"

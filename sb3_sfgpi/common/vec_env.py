@@ -16,34 +16,9 @@ from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
 
-
-def env_reward_dim(env: gym.Env) -> int:
-    """
-    Number of objectives of a vector-reward Gymnasium env, read from its ``reward_space``.
-
-    :param env: a Gymnasium env (possibly wrapped) following the MO-Gymnasium convention
-    :return: ``d``, the length of the reward vector
-    :raises ValueError: the env has no ``reward_space`` (a scalar-reward env) or it is not a 1-D Box
-    """
-    try:
-        reward_space = env.get_wrapper_attr("reward_space")
-    except AttributeError:
-        reward_space = None
-    return _reward_dim_of_space(reward_space, env)
-
-
-def _reward_dim_of_space(reward_space: Any, env: Any) -> int:
-    if reward_space is None:
-        raise ValueError(
-            f"{env} has scalar rewards (no `reward_space`): successor features need a vector-reward env "
-            "following the MO-Gymnasium convention (reward of shape (d,) and a `reward_space` Box of shape (d,))"
-        )
-    if not isinstance(reward_space, spaces.Box) or len(reward_space.shape) != 1:
-        raise ValueError(f"`reward_space` of {env} must be a 1-D gymnasium Box, got {reward_space}")
-    return int(reward_space.shape[0])
+from sb3_sfgpi.common.reward_space import env_reward_dim, reward_dim_of_space
 
 
 class MOMonitor(gym.Wrapper):
@@ -134,7 +109,7 @@ def vec_env_reward_dim(venv: VecEnv) -> int:
         raise ValueError("DummyVecEnv stores scalar rewards; use sb3_sfgpi.common.vec_env.MODummyVecEnv")
     if not (getattr(inner, "vector_rewards", False) or isinstance(inner, SubprocVecEnv)):
         raise ValueError(f"unsupported VecEnv {type(inner).__name__}: use MODummyVecEnv or SubprocVecEnv")
-    return _reward_dim_of_space(venv.get_attr("reward_space", indices=[0])[0], venv)
+    return reward_dim_of_space(venv.get_attr("reward_space", indices=[0])[0], venv)
 
 
 def wrap_mo_env(env: gym.Env | VecEnv) -> VecEnv:
