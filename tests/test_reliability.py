@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -91,6 +92,28 @@ def test_train_refuses_a_run_directory_it_cannot_create(tmp_path):
     )
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert f"--out {out}: cannot create the run directory (Not a directory)" in result.stderr
+
+
+def test_a_diverging_tabular_update_stops_in_one_clear_error_without_numpy_warnings():
+    """α = 1 with batches of 32 on the Fig. 1 chain: the first update moves a lone transition 32 times its TD error; the
+    table overflows float32 within 40 steps. It stops there, not at a later save, and numpy warns of nothing."""
+    settings = {**FIG1_TABULAR_KWARGS, "batch_size": 32, "seed": 0}  # seeds 0-11: it diverges within 21-50 steps
+    model = SFDQN("TabularPolicy", Fig1MOMDP(), **{**settings, "learning_rate": 1.0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an overflow warning would fail here
+        with pytest.raises(ValueError, match=r"the tabular TD update diverged .* learning_rate 1 and batch_size 32"):
+            model.learn(3_000)
+    assert model.num_timesteps < 100
+    fine = SFDQN("TabularPolicy", Fig1MOMDP(), **{**settings, "learning_rate": 0.2})
+    assert np.isfinite(fine.learn(3_000).successor_features(np.arange(5))).all()  # a smaller α on the same batches
+
+
+def test_the_cli_stops_a_diverging_run_in_one_line(tmp_path, cli_exit):
+    code, stderr = cli_exit(
+        ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "2000", "--no-progress", "--out",
+         str(tmp_path / "run"), "--learner", "learning_rate=1"]
+    )  # fmt: skip
+    assert code == 2 and len(stderr.strip().splitlines()) == 1 and "the tabular TD update diverged" in stderr
 
 
 def test_numpy_scalars_are_accepted_as_options():

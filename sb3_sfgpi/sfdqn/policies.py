@@ -415,11 +415,35 @@ class TabularPolicy(SFDQNPolicy):
         the tabular update is exact.
 
         :return: the loss before the step
+        :raises ValueError: the update diverged: a value overflowed float32 (a learning rate too large for the batch)
         """
         if vec_normalize_env is not None and vec_normalize_env.norm_obs:
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
-        net, target_net, n_actions = self.sf_net, self.sf_net_target, self.sf_net.n_actions
         obs, actions, next_obs, dones, rewards, next_masks = replay_buffer.sample_arrays(batch_size)
+        lr = self.optimizer.param_groups[0]["lr"]
+        with np.errstate(over="raise", invalid="raise"):  # a value beyond float32: the update diverged
+            try:
+                return self._backup(obs, actions, next_obs, dones, rewards, next_masks, gamma, lr)
+            except FloatingPointError:
+                raise ValueError(
+                    f"the tabular TD update diverged (its TD errors overflowed float32) with learning_rate {lr:g} and "
+                    f"batch_size {batch_size}: an entry sampled k times in one batch moves k · learning_rate of the "
+                    "way to its target, and beyond twice the way it grows instead of converging; lower learning_rate"
+                ) from None
+
+    def _backup(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        next_obs: np.ndarray,
+        dones: np.ndarray,
+        rewards: np.ndarray,
+        next_masks: np.ndarray | None,
+        gamma: float,
+        lr: float,
+    ) -> float:
+        """The update of :meth:`td_update` on a sampled batch; returns the loss before it."""
+        net, target_net, n_actions = self.sf_net, self.sf_net_target, self.sf_net.n_actions
         slots = net.table.store(net.rows(obs, check=False))  # the rows written: stored first (the table may grow)
         next_rows = net.rows(next_obs, check=False)
         entries, next_first = net.entries(), net.table.slots(next_rows) * n_actions
@@ -431,7 +455,7 @@ class TabularPolicy(SFDQNPolicy):
         target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_psi
         flat = slots * n_actions + actions.astype(np.int64, copy=False)
         td_error = target_psi - entries[flat]
-        np.add.at(entries, flat, self.optimizer.param_groups[0]["lr"] * td_error)
+        np.add.at(entries, flat, lr * td_error)
         return float(0.5 * np.square(td_error).sum())
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
