@@ -14,6 +14,9 @@ import pytest
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.sweep_runner import RunSpec, grid, read_spec, run_sweep, train_run
 
+#: One worker runs this module (``--dist loadgroup``): its sweeps share one local Ray instance.
+pytestmark = pytest.mark.xdist_group("ray")
+
 #: Four-room runs of a few seconds: short episodes, small iterations, few test weights, no validation.
 TINY = (
     "--env", "max_steps=30", "--steps-per-iteration", "600",
@@ -87,51 +90,50 @@ def test_the_sweep_command_refuses_bad_arguments_in_one_line(tmp_path, capsys, a
     assert message in err and len(err.strip().splitlines()) == 1
 
 
-def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(tmp_path):
+@pytest.fixture(scope="module")
+def local_ray():
+    """One local Ray instance of 2 CPUs for the module's sweeps (starting one takes about 5 s)."""
     ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(tmp_path, local_ray):
     specs = grid(["four-room"], ["ma-sfols", "random"], [0], options=[*TINY, "--iterations", "3"])
     target = specs[0]
     uninterrupted = train_run(target, tmp_path / "uninterrupted")  # the same run in this process, never killed
     out = tmp_path / "sweep"
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        outcomes: list = []
-        sweep = threading.Thread(target=lambda: outcomes.extend(run_sweep(specs, out, progress_bar=False)))
-        sweep.start()
-        run_dir = out / target.run_name
-        while not (run_dir / "checkpoint.json").is_file():  # the target finished its first iteration of 3
-            assert sweep.is_alive(), "the sweep ended before the run could be killed"
-            time.sleep(0.02)
-        pid = json.loads((run_dir / "sweep.json").read_text())["attempts"][-1]["pid"]
-        os.kill(pid, signal.SIGKILL)
-        sweep.join(timeout=600)
-        assert [o.status for o in outcomes] == ["finished"] * 2
-        assert [o.attempts for o in outcomes] == [2, 1]
-        killed = json.loads((run_dir / "evaluation.json").read_text())
-        reference = json.loads((uninterrupted.run_dir / "evaluation.json").read_text())
-        strip = [
-            [{k: v for k, v in row.items() if k not in ("wall_time", "eval_time")} for row in rows]
-            for rows in (killed, reference)
-        ]
-        assert len(killed) == 3 and strip[0] == strip[1]
-        again = run_sweep(specs, out, progress_bar=False)  # a sweep run again skips what finished
-        assert [o.status for o in again] == ["skipped"] * 2 and [o.attempts for o in again] == [2, 1]
-    finally:
-        ray.shutdown()
+    outcomes: list = []
+    sweep = threading.Thread(target=lambda: outcomes.extend(run_sweep(specs, out, progress_bar=False)))
+    sweep.start()
+    run_dir = out / target.run_name
+    while not (run_dir / "checkpoint.json").is_file():  # the target finished its first iteration of 3
+        assert sweep.is_alive(), "the sweep ended before the run could be killed"
+        time.sleep(0.02)
+    pid = json.loads((run_dir / "sweep.json").read_text())["attempts"][-1]["pid"]
+    os.kill(pid, signal.SIGKILL)
+    sweep.join(timeout=600)
+    assert [o.status for o in outcomes] == ["finished"] * 2
+    assert [o.attempts for o in outcomes] == [2, 1]
+    killed = json.loads((run_dir / "evaluation.json").read_text())
+    reference = json.loads((uninterrupted.run_dir / "evaluation.json").read_text())
+    strip = [
+        [{k: v for k, v in row.items() if k not in ("wall_time", "eval_time")} for row in rows]
+        for rows in (killed, reference)
+    ]
+    assert len(killed) == 3 and strip[0] == strip[1]
+    again = run_sweep(specs, out, progress_bar=False)  # a sweep run again skips what finished
+    assert [o.status for o in again] == ["skipped"] * 2 and [o.attempts for o in again] == [2, 1]
 
 
-def test_runs_asking_more_cpus_than_the_cluster_has_still_run(tmp_path):
-    ray = pytest.importorskip("ray")
+def test_runs_asking_more_cpus_than_the_cluster_has_still_run(tmp_path, local_ray):
     specs = grid(["four-room"], ["ma-sfols"], [0], options=[*TINY, "--iterations", "1"])
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
-    try:
-        outcomes: list = []
-        sweep = threading.Thread(
-            target=lambda: outcomes.extend(run_sweep(specs, tmp_path, cpus_per_run=3, progress_bar=False)), daemon=True
-        )
-        sweep.start()
-        sweep.join(timeout=120)  # the run takes seconds
-        assert not sweep.is_alive(), "a run asking 3 CPUs of a 1-CPU cluster was never scheduled"
-        assert [o.status for o in outcomes] == ["finished"]
-    finally:
-        ray.shutdown()
+    outcomes: list = []
+    sweep = threading.Thread(
+        target=lambda: outcomes.extend(run_sweep(specs, tmp_path, cpus_per_run=3, progress_bar=False)), daemon=True
+    )
+    sweep.start()
+    sweep.join(timeout=120)  # the run takes seconds
+    assert not sweep.is_alive(), "a run asking 3 CPUs of a 2-CPU cluster was never scheduled"
+    assert [o.status for o in outcomes] == ["finished"]
