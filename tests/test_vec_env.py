@@ -27,6 +27,15 @@ def test_mo_dummy_vec_env_steps_vector_rewards():
         sb3_venv.step(np.array([0, 1]))
 
 
+def test_mo_dummy_vec_env_observations_are_copies_that_later_steps_leave_alone():
+    venv = MODummyVecEnv([Fig1MOMDP, Fig1MOMDP])
+    first = venv.reset()
+    second, *_ = venv.step(np.array([0, 1]))
+    third, *_ = venv.step(np.array([0, 1]))
+    assert first.flatten().tolist() == [0, 0] and second.flatten().tolist() == [1, 1]  # not overwritten by the buffer
+    assert third.flatten().tolist() == [2, 2] and not np.shares_memory(third, venv.buf_obs[None])
+
+
 def test_mo_dummy_vec_env_refuses_a_scalar_env():
     with pytest.raises(ValueError, match="scalar rewards"):
         MODummyVecEnv([lambda: gym.make("CartPole-v1")])

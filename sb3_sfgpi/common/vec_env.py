@@ -17,6 +17,8 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs
+from stable_baselines3.common.vec_env.util import dict_to_obs
 
 from sb3_sfgpi.common.reward_space import env_reward_dim, reward_dim_of_space
 
@@ -81,6 +83,11 @@ class MODummyVecEnv(DummyVecEnv):
         self.reward_dim = dims.pop()
         self.reward_space = self.envs[0].get_wrapper_attr("reward_space")
         self.buf_rews = np.zeros((self.num_envs, self.reward_dim), dtype=np.float32)
+
+    def _obs_from_buf(self) -> VecEnvObs:
+        # SB3 deep-copies the dict of observation buffers at every step: copying each array gives the same
+        # observations without deepcopy's walk (8 % of a tabular SFDQN step on MO-Gymnasium's Four-Room).
+        return dict_to_obs(self.observation_space, {key: array.copy() for key, array in self.buf_obs.items()})
 
 
 def vec_env_reward_dim(venv: VecEnv) -> int:
