@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -39,6 +40,15 @@ FIG1_TABULAR_STEPS = 1_200
 #: `train` options for tests of training mechanics on the four-room preset: validating untrained policies on the
 #: preset's 100 validation weights would take minutes
 FEW_VALIDATION = ["--set", "validation_weights=4"]
+
+
+def train_tiny_run(out: Path, steps: int = 100) -> Path:
+    """A finished one-iteration four-room run of ``steps`` joint steps in ``out`` (2 test weights, few validation)."""
+    from sb3_sfgpi.cli import main
+
+    argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", str(steps), "--set", "n_test_weights=2"]
+    assert main([*argv, *FEW_VALIDATION, "--no-progress", "--out", str(out)]) == 0
+    return out
 
 
 class StopAfter(BaseCallback):

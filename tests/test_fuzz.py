@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import FEW_VALIDATION
+from conftest import train_tiny_run
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -37,10 +37,7 @@ JSON = st.recursive(
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("fuzz") / "run"
-    argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--set", "n_test_weights=2"]
-    assert main([*argv, *FEW_VALIDATION, "--no-progress", "--out", str(out)]) == 0
-    return out
+    return train_tiny_run(tmp_path_factory.mktemp("fuzz") / "run")
 
 
 def damaged_copy(run_dir: Path, tmp_path: Path, file: str, key: str | None, value) -> Path:

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch as th
-from conftest import FEW_VALIDATION, FIG1_TABULAR_KWARGS
+from conftest import FEW_VALIDATION, FIG1_TABULAR_KWARGS, train_tiny_run
 from momdp import Fig1MOMDP
 from tensorboard_scalars import scalar_steps
 
@@ -124,10 +124,7 @@ def test_numpy_scalars_are_accepted_as_options():
 @pytest.fixture(scope="module")
 def one_iteration_run(tmp_path_factory) -> Path:
     """A finished one-iteration run of 150 steps (tests resume copies of it)."""
-    out = tmp_path_factory.mktemp("trained") / "run"
-    train = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "150", "--set", "n_test_weights=2"]
-    assert main([*train, *FEW_VALIDATION, "--no-progress", "--out", str(out)]) == 0
-    return out
+    return train_tiny_run(tmp_path_factory.mktemp("trained") / "run", steps=150)
 
 
 @pytest.mark.parametrize(
