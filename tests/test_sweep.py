@@ -14,9 +14,6 @@ import pytest
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.sweep_runner import RunSpec, grid, read_spec, run_sweep, train_run
 
-#: One worker runs this module (``--dist loadgroup``): its sweeps share one local Ray instance.
-pytestmark = pytest.mark.xdist_group("ray")
-
 #: Four-room runs of a few seconds: short episodes, small iterations, few test weights, no validation.
 TINY = (
     "--env", "max_steps=30", "--steps-per-iteration", "600",

@@ -13,9 +13,6 @@ from example_scripts import load_example
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.presets import load_domain
 
-#: One worker runs this module (``--dist loadgroup``): its fixture trains four runs, once, not once per worker.
-pytestmark = pytest.mark.xdist_group("validation_replay")
-
 TRAIN = ["train", "four-room", "--iterations", "4", "--steps-per-iteration", "400", "--set", "n_test_weights=4"]
 #: the rules, as the replay takes them and as ``train`` does
 RULES = ["--validation-weights", "6", "--prune", "--admit-together"]
