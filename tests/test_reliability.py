@@ -173,19 +173,23 @@ def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_pat
     run = ["train", "four-room", "--iterations", "3", "--steps-per-iteration", "300", "--set", "n_test_weights=2"]
     run += [*FEW_VALIDATION, "--no-progress"]
 
-    def train(out, timeout=None):
+    def train(out, kill_after=None):
         argv = [*run, "--out", str(out), *(["--resume"] if (out / "run.json").exists() else [])]
-        process = subprocess.Popen([sys.executable, "-m", "sb3_sfgpi.cli", *argv], stdout=subprocess.DEVNULL)
-        try:
-            return process.wait(timeout)
-        except subprocess.TimeoutExpired:
-            process.kill()  # SIGKILL: no handler runs
-            return process.wait()
+        command = [sys.executable, "-m", "sb3_sfgpi.cli", *argv]
+        with subprocess.Popen(command, stdout=subprocess.PIPE, text=True) as process:
+            process.stdout.readline()  # the header: the run is built, training starts
+            try:
+                return process.wait(kill_after)
+            except subprocess.TimeoutExpired:
+                process.kill()  # SIGKILL: no handler runs
+                return process.wait()
 
+    start = time.monotonic()
     assert main([*run, "--out", str(tmp_path / "whole")]) == 0  # in this process: never killed
+    seconds = time.monotonic() - start  # the whole run's length (a fixed delay let a fast machine finish unkilled)
     cut, kills = tmp_path / "cut", 0
-    for delay in np.random.default_rng(12).uniform(3, 9, size=4):
-        kills += train(cut, timeout=delay) != 0
+    for fraction in np.random.default_rng(12).uniform(0.05, 0.6, size=4):  # the first attempt is always killed
+        kills += train(cut, kill_after=fraction * seconds) != 0
         if (cut / "checkpoint.json").exists() and json.loads((cut / "checkpoint.json").read_text())["iteration"] == 3:
             break
     assert kills >= 1 and train(cut) == 0
