@@ -96,7 +96,7 @@ def test_train_refuses_a_run_directory_it_cannot_create(tmp_path):
 
 def test_a_diverging_tabular_update_stops_in_one_clear_error_without_numpy_warnings():
     """α = 1 with batches of 32 on the Fig. 1 chain: the first update moves a lone transition 32 times its TD error; the
-    table overflows float32 within 40 steps. It stops there, not at a later save, and numpy warns of nothing."""
+    TD errors overflow float32 within 40 steps. It stops there, not at a later save, and numpy warns of nothing."""
     settings = {**FIG1_TABULAR_KWARGS, "batch_size": 32, "seed": 0}  # seeds 0-11: it diverges within 21-50 steps
     model = SFDQN("TabularPolicy", Fig1MOMDP(), **{**settings, "learning_rate": 1.0})
     with warnings.catch_warnings():
