@@ -42,12 +42,16 @@ FIG1_TABULAR_STEPS = 1_200
 FEW_VALIDATION = ["--set", "validation_weights=4"]
 
 
+def tiny_four_room(steps: int = 100) -> list[str]:
+    """The command line of a four-room run of one iteration of ``steps`` joint steps and 2 test weights."""
+    return ["train", "four-room", "--iterations", "1", "--steps-per-iteration", str(steps), "--set", "n_test_weights=2"]
+
+
 def train_tiny_run(out: Path, steps: int = 100) -> Path:
-    """A finished one-iteration four-room run of ``steps`` joint steps in ``out`` (2 test weights, few validation)."""
+    """A finished :func:`tiny_four_room` run in ``out`` (few validation weights)."""
     from sb3_sfgpi.cli import main
 
-    argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", str(steps), "--set", "n_test_weights=2"]
-    assert main([*argv, *FEW_VALIDATION, "--no-progress", "--out", str(out)]) == 0
+    assert main([*tiny_four_room(steps), *FEW_VALIDATION, "--no-progress", "--out", str(out)]) == 0
     return out
 
 

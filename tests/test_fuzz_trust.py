@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 import pytest
+from conftest import tiny_four_room
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from shared_runs import edited
@@ -152,10 +153,8 @@ def test_env_arguments_of_a_shared_run_write_nothing_outside_it(traffic_run, tmp
 @pytest.fixture(scope="module")
 def four_room_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fuzz_trust") / "four-room"
-    argv = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--set", "n_test_weights=2"]
-    assert (
-        main([*argv, "--env", "max_steps=30", "--set", "validation_weights=0", "--no-progress", "--out", str(out)]) == 0
-    )
+    argv = [*tiny_four_room(), "--env", "max_steps=30", "--set", "validation_weights=0", "--no-progress"]
+    assert main([*argv, "--out", str(out)]) == 0
     return out
 
 

@@ -8,15 +8,14 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import FEW_VALIDATION
+from conftest import FEW_VALIDATION, tiny_four_room
 from sfgpi_envs import FourRoomParallelEnv
 
 from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.run_directory import RunDirectory, RunDirectoryBusy
 
-TRAIN = ["train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--set", "n_test_weights=2"]
-TRAIN += FEW_VALIDATION  # the runs' content does not matter here: who may write them does
+TRAIN = [*tiny_four_room(), *FEW_VALIDATION]  # the runs' content does not matter here: who may write them does
 
 
 def hold_lock(run_dir: Path) -> subprocess.Popen:

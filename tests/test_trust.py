@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
+from conftest import tiny_four_room
 from shared_runs import edited
 
 from sb3_sfgpi.cli import main
@@ -19,10 +20,7 @@ TINY_TRAFFIC = [
     "--learner", "learning_starts=0",
     "--learner", "batch_size=4", "--no-progress",
 ]  # fmt: skip
-TINY_FOUR_ROOM = [
-    "train", "four-room", "--iterations", "1", "--steps-per-iteration", "100", "--set", "n_test_weights=2",
-    "--set", "validation_weights=0", "--no-progress",
-]  # fmt: skip
+TINY_FOUR_ROOM = [*tiny_four_room(), "--set", "validation_weights=0", "--no-progress"]
 
 
 @pytest.fixture(scope="module")
