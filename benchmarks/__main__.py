@@ -3,8 +3,8 @@
     python -m benchmarks                 # everything (about 26 minutes on 2 cores, 13 of them sweep-fig4)
     python -m benchmarks --quick         # shorter runs
     python -m benchmarks gpi ols         # some: gpi training planning ols traffic memory optimum sharing
-                                         # copies ray-eval startup admission tabular sweep sweep-fig4, and
-                                         # sweep-fig4-preset,
+                                         # copies ray-eval startup admission tabular tabular-peer sweep
+                                         # sweep-fig4, and sweep-fig4-preset,
                                          # known-fronts, known-fronts-minecart (only when named)
     python -m benchmarks --output results.md
     python -m benchmarks known-fronts --seeds 0 1 2 --envs deep-sea-treasure resource-gathering fruit-tree
@@ -47,6 +47,7 @@ BENCHMARKS = {
     "startup": "benchmarks.bench_startup",
     "admission": "benchmarks.bench_admission",
     "tabular": "benchmarks.bench_tabular",
+    "tabular-peer": "benchmarks.bench_tabular_peer",
     "sweep-fig4": "benchmarks.bench_sweep:run_fig4",
     "sweep-fig4-preset": "benchmarks.bench_sweep:run_fig4_preset",
     "known-fronts": "benchmarks.bench_known_fronts",

@@ -46,7 +46,11 @@ class Row:
 
 
 def interleaved_samples(
-    functions: dict[str, Callable[[], Any]], repeats: int, number: int = 1, warmup: int = 1
+    functions: dict[str, Callable[[], Any]],
+    repeats: int,
+    number: int = 1,
+    warmup: int = 1,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> dict[str, list[float]]:
     """
     Seconds per call of each function, timed alternately (A B C, B C A, ...) in ``repeats`` rounds.
@@ -55,6 +59,7 @@ def interleaved_samples(
     :param repeats: how many rounds (samples of each function)
     :param number: calls per sample (the sample is their mean)
     :param warmup: untimed calls of each function first
+    :param clock: what a second is read from: wall time (default) or ``time.process_time`` (this process's CPU)
     :return: name -> one sample per round, in round order
     """
     names = list(functions)
@@ -66,10 +71,10 @@ def interleaved_samples(
         order = names[r % len(names) :] + names[: r % len(names)]
         for name in order:
             fn = functions[name]
-            start = time.perf_counter()
+            start = clock()
             for _ in range(number):
                 fn()
-            samples[name].append((time.perf_counter() - start) / number)
+            samples[name].append((clock() - start) / number)
     return samples
 
 

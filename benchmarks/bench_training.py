@@ -20,6 +20,7 @@ the per-round ratios (both sides timed in the same round).
 from __future__ import annotations
 
 import copy
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -196,17 +197,25 @@ class FixedWeights(BaseCallback):
         return True
 
 
-def chunked_interleaved(makers: dict[str, Callable[[], Callable[[int], Any]]], chunk: int, repeats: int) -> dict:
+def chunked_interleaved(
+    makers: dict[str, Callable[[], Callable[[int], Any]]],
+    chunk: int,
+    repeats: int,
+    clock: Callable[[], float] = time.perf_counter,
+) -> dict:
     """
     Seconds per chunk of ``chunk`` steps of each learner, timed in interleaved rounds (one sample per round).
 
     Each maker builds its learner (untimed) and returns ``advance(n)``, which trains it ``n`` more steps. One
     untimed chunk warms every learner up (imports, first allocations, the first learning steps).
+
+    :param clock: wall time (default) or ``time.process_time`` (seconds of this process's CPU)
     """
     advances = {name: make() for name, make in makers.items()}
     for advance in advances.values():
         advance(chunk)
-    return interleaved_samples({name: (lambda a=a: a(chunk)) for name, a in advances.items()}, repeats, warmup=0)
+    chunks = {name: (lambda a=a: a(chunk)) for name, a in advances.items()}
+    return interleaved_samples(chunks, repeats, warmup=0, clock=clock)
 
 
 def _median(samples: dict[str, list[float]]) -> dict[str, float]:
