@@ -254,3 +254,20 @@ def test_compare_takes_fixed_runs_of_the_same_env_and_refuses_others(run_dir, tm
     capsys.readouterr()
     assert main(["compare", str(run_dir), "--fixed", str(other), "--episodes", "1", "--workers", "0"]) == 2
     assert "was trained on another env configuration" in capsys.readouterr().err
+
+
+def test_an_ols_end_on_one_dominating_value_says_to_check_the_learners_steps(tmp_path, capsys):
+    """Learners of 5 steps learn nothing: the extrema's values leave one CCS point and OLS ends with budget left. The
+    result line must not call that set a CCS of the problem (minecart's first three policies end a run this way)."""
+    tiny = ["--steps-per-iteration", "5", "--env", "max_steps=30", "--set", "n_test_weights=2"]
+    argv = ["train", "four-room", "--iterations", "10", *tiny, "--set", "validation_weights=0", "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "run")]) == 0
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert ": 2 iterations, " in last and "CCS=1," in last  # ended by OLS after the extrema (two agents, d = 3)
+    assert "the set is a CCS" not in last and "the learners need more steps: --steps-per-iteration)" in last
+
+
+def test_an_ols_end_on_several_values_or_one_objective_says_the_set_is_a_ccs():
+    from sb3_sfgpi.cli.train import _ols_end
+
+    assert _ols_end(ccs_size=4, reward_dim=3) == _ols_end(ccs_size=1, reward_dim=1) == " (OLS ended: the set is a CCS)"

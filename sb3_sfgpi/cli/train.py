@@ -298,5 +298,19 @@ def _print_result(run_dir: RunDirectory, model: MASFOLS) -> None:
     print(
         f"{run_dir}: {last['iteration']} iterations, |Π|={last['n_policies']}, CCS={last['ccs_size']}, "
         f"mean w·return (discounted)={last['mean_return']:.4f}, {last['wall_time']:.1f}s"
-        + (" (OLS ended: the set is a CCS)" if model.callback.ended_by_schedule else "")
+        + (_ols_end(last["ccs_size"], model.runner.reward_dim) if model.callback.ended_by_schedule else "")
     )
+
+
+def _ols_end(ccs_size: int, reward_dim: int) -> str:
+    """
+    Why OLS ended, for the result line. One learned value that dominates all the others is OLS's end (one policy
+    optimal for every weight), but it is also what learners that learned too little give (on minecart, three policies
+    that bring no ore home: their values differ in fuel only), so the line says what to check.
+    """
+    if ccs_size == 1 and reward_dim > 1:
+        return (
+            " (OLS ended: one learned value dominates all the others, so no weight is left to try; where the "
+            "objectives trade off, the learners need more steps: --steps-per-iteration)"
+        )
+    return " (OLS ended: the set is a CCS)"
