@@ -18,6 +18,8 @@ from typing import Any
 
 #: The repository (the candidate's source tree).
 ROOT = Path(__file__).resolve().parent.parent
+#: The row of a comparison whose morl-baselines peer is not installed (an optional extra, never a runtime dependency).
+MORL_MISSING = 'morl-baselines not installed: pip install "sb3-sfgpi[morl]"'
 
 
 @dataclass

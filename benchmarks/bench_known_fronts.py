@@ -40,7 +40,7 @@ import torch as th
 from sfgpi_envs.resource_gathering_optimum import resource_gathering_mdp
 from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_tree_mdp
 
-from benchmarks._common import Row
+from benchmarks._common import MORL_MISSING, Row
 from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.callbacks import ValueEstimation
@@ -54,7 +54,6 @@ from sb3_sfgpi.evaluation import summarize_test_episodes
 NAME = "known fronts"
 N_TEST_WEIGHTS = 50
 SEEDS = (0, 1, 2)
-MORL_MISSING = "morl-baselines not installed: pip install morl-baselines"
 
 
 @dataclass(frozen=True)

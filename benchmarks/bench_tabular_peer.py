@@ -21,13 +21,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from benchmarks._common import Row, fmt_rate, paired_ratio
+from benchmarks._common import MORL_MISSING, Row, fmt_rate, paired_ratio
 from benchmarks.bench_training import TABULAR_KWARGS, WEIGHTS, _silent, chunked_interleaved
 from benchmarks.envs import four_room
 from sb3_sfgpi import SFDQN
 
 NAME = "tabular peer"
-MORL_MISSING = 'morl-baselines not installed: pip install "sb3-sfgpi[morl]"'
 #: TD updates per env step of each pair: (SFDQN's batch size, MOQLearning's Dyna updates after its own).
 PAIRS = {32: (32, 31), 1: (1, 0)}
 
@@ -64,13 +63,7 @@ def _moq_learning(algorithm: type, dyna_updates: int) -> Advance:
         final_epsilon=TABULAR_KWARGS["exploration_final_eps"], dyna=dyna_updates > 0, dyna_updates=dyna_updates,
         log=False, seed=0,
     )  # fmt: skip
-    calls = []
-
-    def advance(n: int) -> None:
-        agent.train(start_time=time.time(), total_timesteps=n, reset_num_timesteps=not calls)
-        calls.append(n)
-
-    return advance
+    return lambda n: agent.train(start_time=time.time(), total_timesteps=n, reset_num_timesteps=agent.global_step == 0)
 
 
 def _row(samples: dict[str, list[float]], updates: int, chunk: int, repeats: int) -> Row:
