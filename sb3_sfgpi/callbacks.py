@@ -11,6 +11,7 @@ and what is written where the :class:`~sb3_sfgpi.run_directory.RunDirectory`'s b
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,7 @@ from tqdm.auto import tqdm
 from sb3_sfgpi.admission import Admission, Candidate
 from sb3_sfgpi.common.metrics import hypervolume
 from sb3_sfgpi.common.seeding import derive_seed
+from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
@@ -30,7 +32,9 @@ from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.run_settings import VALUE_MODES
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
+from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
+from sb3_sfgpi.sfdqn.training_state import training_state
 from sb3_sfgpi.validation import ValidationScorer
 
 
@@ -174,6 +178,7 @@ class OLSCallback(BaseCallback):
             self._iteration_bar.close()
         self.model.end_iteration()  # line 15: the agents learned their policies and SFs
         self._pool_replay()  # with pooled replay: every policy's SFs planned on all that was seen so far
+        self._follow_conditioned()  # learners conditioned on w: their members of Π take their latest SFs
         candidates = [
             Candidate(self.model.learners[name], value, name)
             for name, value in self._estimate_values().items()  # lines 17-19: V^π of each agent's new policy
@@ -203,15 +208,48 @@ class OLSCallback(BaseCallback):
         self.record.networks_changed()
         self.admission.forget()  # Π's SFs changed, and with them GPI's score over Π
 
+    def _follow_conditioned(self) -> None:
+        """
+        Where learners are conditioned on the weights (one network for every weight, trained on): the members of Π
+        they made take their latest network, and the values of those members are estimated again and recorded (OLS
+        sees what each weight's policy returns now, and may find new corner weights).
+        """
+        learners = {name: learner for name, learner in self.model.learners.items() if learner.conditioned}
+        if not learners:
+            return
+        seed = derive_seed(self.model.seed, "revalue", self.iteration)
+        for i, info in enumerate(self.record.infos):
+            learner = learners.get(info.agent)  # type: ignore[arg-type]
+            if learner is None:
+                continue
+            cast(ConditionedSFNetwork, self.record.networks[i]).follow(learner.policy.sf_net)
+            returns = self.model.rollout(self.model.learner_policy(w=info.weights), self.values.episodes, seed)
+            value = returns.mean_discounted_over(self.model.groups[info.agent])  # type: ignore[index]
+            self.record.infos[i] = dataclasses.replace(info, value=value)
+            self.schedule.add(value, info.weights)
+        self.record.networks_changed()
+        self.admission.forget()  # Π's SFs changed, and with them GPI's score over Π
+
     def _next_weights(self) -> AgentWeights | None:
-        """The next weights from the schedule (top of the OLS queue, Dirichlet(1) beyond it), None when it ended."""
+        """
+        The next weights from the schedule (top of the OLS queue, Dirichlet(1) beyond it), None when it ended.
+
+        Learners conditioned on the weights are still learning every weight when OLS's queue empties (on minecart,
+        every extremum's first value is the same cart that brings no ore: one CCS point, no corner left): a run with
+        ``max_iterations`` then spends its budget on Dirichlet(1) weights, and the values estimated again after
+        every iteration can queue corner weights again.
+        """
         rng = np.random.default_rng(derive_seed(self.model.seed, "random-weights", self.iteration))
-        return self.schedule.next_weights(self.model.learner_names, rng)
+        weights = self.schedule.next_weights(self.model.learner_names, rng)
+        conditioned = any(learner.conditioned for learner in self.model.learners.values())
+        if weights is None and conditioned and self.max_iterations is not None:
+            return {name: random_weights(self.model.reward_dim, rng=rng) for name in self.model.learner_names}
+        return weights
 
     def _start_iteration(self, weights: AgentWeights) -> None:
         self.weights = weights
         self._iteration_start = self.model.num_timesteps
-        self.model.start_iteration(weights, self.iteration, self.steps_per_iteration)
+        self.model.start_iteration(weights, self.iteration, self.steps_per_iteration, support=self.schedule.ols.weights)
         if self.progress_bar:
             self._iteration_bar = tqdm(
                 total=self.steps_per_iteration, desc=f"iteration {self.iteration + 1}", unit="step", leave=False
@@ -272,14 +310,21 @@ class OLSCallback(BaseCallback):
     def _write_checkpoint(self, next_weights: AgentWeights | None) -> None:
         if self.run_dir is None:
             return
+        going_on = {name: learner for name, learner in self.model.learners.items() if learner.conditioned}
+        if going_on:  # before the checkpoint that names them
+            states = {name: training_state(learner) for name, learner in going_on.items()}
+            self.run_dir.write_learners(self.iteration, states)
         checkpoint = {
             "iteration": self.iteration,
             "timesteps": self.model.num_timesteps,
             "n_policies": len(self.record),  # the record's: Π is its members as of "iteration"
             "schedule": self.schedule.state_dict(),
             "next_weights": None if next_weights is None else {a: w.tolist() for a, w in next_weights.items()},
+            "learners": bool(going_on),  # learners that go on across iterations: their state in learners/
         }
         self.run_dir.write_iteration(self.history, checkpoint)
+        if going_on:
+            self.run_dir.remove_learners_before(self.iteration)
 
     def _restore(self) -> AgentWeights | None:
         """Restore the state of the last finished iteration; return the next weights (None if the schedule ended)."""
@@ -295,6 +340,8 @@ class OLSCallback(BaseCallback):
             for iteration in range(1, self.iteration + 1):
                 self.pooled.add_saved(self.run_dir.read_experience(iteration), table)
         self.model.num_timesteps = state["timesteps"]
+        if state.get("learners"):
+            self.model.restore_learners(self.run_dir.read_learners(self.iteration))
         if state["next_weights"] is None:
             return None
         if set(state["next_weights"]) != set(self.model.learner_names):

@@ -45,6 +45,7 @@ from sb3_sfgpi.gpi_predictor import GPIPredictor
 from sb3_sfgpi.ols import OLS, TOLERANCE
 from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_spec
 from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, write_policy_set
+from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 from sb3_sfgpi.stacking import Stacked, WithoutOne, numpy_tables, stack_networks
@@ -135,7 +136,8 @@ class GPIPolicy:
         retired: int | None = None,
     ) -> int:
         """
-        Add a copy of a policy's SF network to the set.
+        Add a copy of a policy's SF network to the set (a network conditioned on the weights: bound to ``weights``,
+        see :meth:`~sb3_sfgpi.sfdqn.conditioned.ConditionedSFNetwork.bound_to`).
 
         :param model: an SFDQN model, or an SF network (then ``weights`` is required)
         :param weights: the weights it was trained for (default: the model's)
@@ -168,7 +170,7 @@ class GPIPolicy:
         v = None if value is None else np.asarray(value, dtype=np.float64).reshape(reward_dim)
         if self._device is None:
             self._device = resolve_device(self._device_request, tabular=isinstance(net, TabularSFNetwork))
-        copied = copy.deepcopy(net).to(self._device)
+        copied = (net.bound_to(w) if isinstance(net, ConditionedSFNetwork) else copy.deepcopy(net)).to(self._device)
         copied.set_training_mode(False)
         for parameter in copied.parameters():
             parameter.requires_grad_(False)

@@ -31,6 +31,8 @@ from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_logger import run_logger
 from sb3_sfgpi.run_settings import REMOVED_SETTINGS, SETTING_DEFAULTS, SETTINGS, acts_by_own_policies
 from sb3_sfgpi.schedules import make_schedule
+from sb3_sfgpi.sfdqn import SFDQN
+from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
 
 
 class MASFOLS:
@@ -41,7 +43,9 @@ class MASFOLS:
 
     :param env: the env: a ParallelEnv (homogeneous agents, Discrete actions, ``reward_space(agent)``) or a
         Gymnasium env with a ``reward_space`` (``mo_gymnasium.make(...)``)
-    :param policy: the learners' SFDQN policy, ``"TabularPolicy"`` or ``"MlpPolicy"``
+    :param policy: the learners' SFDQN policy, ``"TabularPolicy"``, ``"MlpPolicy"`` (a new learner per iteration) or
+        ``"ConditionedMlpPolicy"`` (one learner per agent for the whole run, ``ψ(s, a, w)`` trained for every weight
+        of OLS's support and acting by GPI over it; its replay buffer is not cut to one iteration)
     :param weights: ``"ols"`` (MA-SFOLS), ``"random"`` (Random + GPI: Dirichlet(1) weights) or array-like fixed
         weights (a priori scalarised learners: every agent trains for them; each agent is evaluated by GPI over
         its own policies, at these weights unless the evaluation's ``test_weights`` say otherwise)
@@ -107,7 +111,8 @@ class MASFOLS:
             env_fn=env_fn,
         )
         slots = max(len(slots) for slots in self.runner.slots.values())
-        sized = replay_sized(learner_kwargs, steps_per_iteration, slots)
+        goes_on = policy in SFDQN.policy_aliases and issubclass(SFDQN.policy_aliases[policy], ConditionedPolicy)
+        sized = learner_kwargs if goes_on else replay_sized(learner_kwargs, steps_per_iteration, slots)
         self.runner.learner_factory = default_learner_factory(policy=policy, **sized)
         self.runner.check_learner()
         if pool_replay:

@@ -38,8 +38,10 @@ from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
+from sb3_sfgpi.common.weights import unique_weights
 from sb3_sfgpi.run_settings import SHARED, SHARINGS
 from sb3_sfgpi.sfdqn import SFDQN
+from sb3_sfgpi.sfdqn.training_state import restore_training_state
 
 #: Builds the learner of an agent: ``(agent, per-agent VecEnv, weights, seed) -> SFDQN``.
 LearnerFactory = Callable[[str, VecEnv, np.ndarray, int], SFDQN]
@@ -230,25 +232,41 @@ class MultiAgentRunner:
                 "optimize_memory_usage=False"
             )
 
-    def start_iteration(self, weights: dict[str, np.ndarray], iteration: int, total_timesteps: int) -> None:
+    def start_iteration(
+        self,
+        weights: dict[str, np.ndarray],
+        iteration: int,
+        total_timesteps: int,
+        support: list[np.ndarray] | None = None,
+    ) -> None:
         """
-        Give every learner name a new learner for its weights and reset the shared env.
+        Give every learner name a new learner for its weights and reset the shared env. A learner conditioned on the
+        weights (``ConditionedMlpPolicy``) is not replaced: it goes on learning, for its new weights and the support.
 
-        Everything an iteration does depends only on ``(seed, iteration, learner name)`` and the weights, so a
-        resumed run repeats an interrupted iteration exactly.
+        Everything an iteration of fresh learners does depends only on ``(seed, iteration, learner name)`` and the
+        weights, so a resumed run repeats an interrupted iteration exactly.
 
         :param weights: learner name (:attr:`learner_names`) -> preference weights
         :param iteration: index of the iteration (for seeds and log names)
         :param total_timesteps: joint env steps the iteration will run (for the learners' schedules)
+        :param support: the weights trained before (OLS's), which conditioned learners also train for and act over
         """
         self.iteration = iteration
         self._close_learners()
+        this_iteration = list(weights.values())
         for name in self.learner_names:
-            learner = self.learner_factory(
-                name, self.views[name], weights[name], derive_seed(self.seed, iteration, name)
-            )
+            learner = self.learners.get(name)
+            if learner is not None and learner.conditioned:
+                learner.set_weights(weights[name])
+            else:
+                learner = self.learner_factory(
+                    name, self.views[name], weights[name], derive_seed(self.seed, iteration, name)
+                )
             if learner.train_freq.unit != TrainFrequencyUnit.STEP:  # type: ignore[union-attr]
                 raise ValueError("the multi-agent runner supports train_freq in steps only")
+            if learner.conditioned:  # seeded by iteration, as a new learner is: a resumed run goes on the same
+                learner.set_random_seed(derive_seed(self.seed, iteration, name))
+                learner.set_weight_support(unique_weights([*(support or []), *this_iteration]))
             self.learners[name] = learner
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for name, learner in self.learners.items():
@@ -261,12 +279,26 @@ class MultiAgentRunner:
             _, callback = learner._setup_learn(
                 total_timesteps * learner.n_envs,  # in transitions, as SB3 counts them
                 self.learner_callback(name) if self.learner_callback else None,
-                reset_num_timesteps=True,
+                reset_num_timesteps=not learner.conditioned,
                 tb_log_name=log_name,
             )
             callback.on_training_start(locals(), globals())
             callback.on_rollout_start()
             self._learner_callbacks[name] = callback
+
+    def restore_learners(self, states: Mapping[str, Any]) -> None:
+        """
+        Rebuild the learners that go on across iterations from their saved states (a resumed run's).
+
+        :param states: learner name -> :func:`~sb3_sfgpi.sfdqn.training_state.training_state`
+        :raises ValueError: an unknown learner name, or a state that does not fit the learner
+        """
+        for name, state in states.items():
+            if name not in self.groups:
+                raise ValueError(f"saved state of an unknown learner {name!r} (the learners: {self.learner_names})")
+            learner = self.learner_factory(name, self.views[name], np.full(self.reward_dim, 1 / self.reward_dim), 0)
+            restore_training_state(learner, state)
+            self.learners[name] = learner
 
     def reset_env(self, seed: int | None = None, copies: list[int] | None = None) -> None:
         """
@@ -427,12 +459,14 @@ class MultiAgentRunner:
             self.end_iteration()
         self._monitors: dict[str, list] = {}
 
-    def learner_policy(self, learner: str | None = None) -> JointPolicy:
+    def learner_policy(self, learner: str | None = None, w: np.ndarray | None = None) -> JointPolicy:
         """
         The joint policy of the learners' greedy policies.
 
         :param learner: None: every agent acts with the learner it trains; a learner's name: every agent acts with
             that learner (the value of its policy as a shared one)
+        :param w: the weights every learner acts for (None: its own); a learner conditioned on the weights acts by
+            GPI over its support
         """
         owner = {agent: name for name, agents in self.groups.items() for agent in agents}
 
@@ -443,7 +477,7 @@ class MultiAgentRunner:
                 if names:
                     batch = np.stack([observations[a] for a in names])
                     masks = None if action_masks is None else np.stack([action_masks[a] for a in names])
-                    actions, _ = self.learners[name].predict(batch, deterministic=True, action_masks=masks)
+                    actions, _ = self.learners[name].predict(batch, deterministic=True, w=w, action_masks=masks)
                     chosen.update(zip(names, actions.tolist(), strict=True))
             return {agent: chosen[agent] for agent in observations}
 

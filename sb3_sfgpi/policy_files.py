@@ -19,6 +19,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
+from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, observation_radices
 
 _ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
@@ -36,19 +37,26 @@ def network_spec(net: nn.Module) -> dict[str, Any]:
     """
     if isinstance(net, TabularSFNetwork):
         return {"kind": "tabular"}
-    if isinstance(net, SFNetwork):
+    if isinstance(net, (SFNetwork, ConditionedSFNetwork)):
         if type(net.features_extractor) is not FlattenExtractor or net.activation_fn.__name__ not in _ACTIVATIONS:
             raise ValueError(
                 "the policy-set format stores MLP SF networks with FlattenExtractor and a standard activation "
                 f"({sorted(_ACTIVATIONS)}), got {type(net.features_extractor).__name__} / {net.activation_fn.__name__}"
             )
         return {
-            "kind": "mlp",
+            "kind": "conditioned-mlp" if isinstance(net, ConditionedSFNetwork) else "mlp",
             "net_arch": list(net.net_arch),
             "activation_fn": net.activation_fn.__name__,
             "normalize_images": bool(net.normalize_images),
         }
     raise ValueError(f"not an SF network: {type(net).__name__}")
+
+
+#: The MLP network classes by their kind in a network spec.
+MLP_KINDS: dict[str, type[SFNetwork] | type[ConditionedSFNetwork]] = {
+    "mlp": SFNetwork,
+    "conditioned-mlp": ConditionedSFNetwork,
+}
 
 
 def _check_one_head(spec: dict[str, Any]) -> None:
@@ -76,13 +84,13 @@ def build_network(
     """
     if spec.get("kind") == "tabular":
         return TabularSFNetwork(observation_space, action_space, reward_dim)
-    if spec.get("kind") == "mlp":
+    if spec.get("kind") in MLP_KINDS:
         if spec.get("activation_fn") not in _ACTIVATIONS:
             known = sorted(_ACTIVATIONS)
             raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {known}")
         _check_one_head(spec)
         extractor = FlattenExtractor(observation_space)
-        return SFNetwork(
+        return MLP_KINDS[spec["kind"]](
             observation_space,
             action_space,
             extractor,
@@ -108,10 +116,14 @@ def declared_bytes(
     if spec.get("kind") == "tabular":
         _, n_values = observation_radices(observation_space)
         return int(np.prod(n_values.astype(np.float64))) * outputs * 4
-    if spec.get("kind") == "mlp":
+    if spec.get("kind") in MLP_KINDS:
         _check_one_head(spec)
         sizes = [spaces.flatdim(observation_space), *[int(n) for n in spec["net_arch"]], outputs]
-        return sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes)) * 4
+        linear = sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes))
+        if spec["kind"] == "conditioned-mlp":  # the weight's features, the layer norms, the member's weights
+            hidden = [int(n) for n in spec["net_arch"]]
+            linear += (reward_dim + 1) * hidden[0] + 2 * sum(hidden[1:]) + reward_dim
+        return linear * 4
     raise ValueError(f"unknown network kind {spec.get('kind')!r}")
 
 

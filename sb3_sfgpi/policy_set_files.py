@@ -37,6 +37,7 @@ from sb3_sfgpi.policy_files import (
     read_state_dict,
 )
 from sb3_sfgpi.run_directory import MANIFEST  # plain data: the name a run directory looks for too
+from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 
 FORMAT = "sb3-sfgpi/policy-set"
 VERSION = 1
@@ -124,6 +125,7 @@ def read_policy_set(directory: Path, retired: bool) -> list[tuple[nn.Module, dic
                 continue
             net = build_network(manifest["network"], observation_space, action_space, reward_dim)
             net.load_state_dict(read_state_dict(directory, entry["file"]))
+            _check_bound(net, entry)
             policies.append((net, entry))
         return policies
     except CorruptPolicySetError:
@@ -151,6 +153,16 @@ def _checked_entry(entry: dict[str, Any]) -> int | None:
     if left is not None and (isinstance(left, bool) or not isinstance(left, int) or left < 1):
         raise ValueError(f"'retired' of {entry['file']!r} must be null or an iteration, got {left!r}")
     return left
+
+
+def _check_bound(net: nn.Module, entry: dict[str, Any]) -> None:
+    """Refuse a conditioned network bound to other weights than its entry's: GPI would act for the wrong policy."""
+    if isinstance(net, ConditionedSFNetwork):
+        bound = net.member_weights.numpy().astype(np.float64)
+        if not np.allclose(bound, np.asarray(entry["weights"], dtype=np.float64), atol=1e-6):
+            raise ValueError(
+                f"{entry['file']!r} is bound to the weights {bound.tolist()}, its entry says {entry['weights']}"
+            )
 
 
 def _check_memory(n_policies: int, network_bytes: int) -> None:

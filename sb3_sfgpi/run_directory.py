@@ -8,6 +8,9 @@ Layout (no other module spells these names)::
                        vector returns of GPI (discounted and not) and the last infos
     evaluation.csv     per iteration: the summary row
     checkpoint.json    the schedule's state (OLS), next iteration and its weights, number of policies in Π
+    learners/          with learners that go on across iterations (``ConditionedMlpPolicy``): their state after the
+                       checkpoint's iteration (``iteration_003.pt``: tensors and plain numbers, see
+                       :mod:`sb3_sfgpi.sfdqn.training_state`)
     experience/        with pooled replay (:mod:`sb3_sfgpi.pooling`): per iteration, the transitions its learners
                        added to the pool (``iteration_001.npz``, ...: counts per (s, a, s'), plain arrays)
     logs/              the runner's SB3 logger (progress.csv, TensorBoard scalars of OLS and GPI)
@@ -349,6 +352,49 @@ class RunDirectory:
                 return {key: data[key] for key in data.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
             raise ValueError(f"{path} is not an experience file (truncated or corrupt?): {error}") from error
+
+    def write_learners(self, iteration: int, states: dict[str, Any]) -> None:
+        """The states of the learners that go on across iterations, after ``iteration`` (numbered from 1)."""
+        import torch as th
+
+        out = io.BytesIO()
+        th.save({"iteration": iteration, "learners": states}, out)
+        atomic_write_bytes(self._learners_file(iteration), out.getvalue())
+
+    def read_learners(self, iteration: int) -> dict[str, Any]:
+        """
+        Learner name -> the state :meth:`write_learners` wrote after ``iteration``, read with ``weights_only=True``.
+
+        :raises ValueError: a missing, unreadable or foreign file
+        """
+        import torch as th
+
+        path = self._learners_file(iteration)
+        try:
+            data = th.load(path, map_location="cpu", weights_only=True)
+        except Exception as error:  # torch raises many types for truncated files and refused pickles
+            message = f"{path}: the learners' state after iteration {iteration} is missing or unreadable: {error}"
+            raise ValueError(message) from None
+        if (
+            not isinstance(data, dict)
+            or data.get("iteration") != iteration
+            or not isinstance(data.get("learners"), dict)
+        ):
+            raise ValueError(f"{path} is not the learners' state after iteration {iteration}")
+        return data["learners"]
+
+    def remove_learners_before(self, iteration: int) -> None:
+        """Delete the learners' states of iterations before ``iteration`` (once a checkpoint no longer names them)."""
+        for path in sorted(self.learners_dir.glob("iteration_*.pt")):
+            if path.name < self._learners_file(iteration).name:
+                path.unlink(missing_ok=True)
+
+    @property
+    def learners_dir(self) -> Path:
+        return self.path / "learners"
+
+    def _learners_file(self, iteration: int) -> Path:
+        return self.learners_dir / f"iteration_{iteration:03d}.pt"
 
     def _experience_file(self, iteration: int) -> Path:
         return self.experience_dir / f"iteration_{iteration:03d}.npz"

@@ -29,6 +29,7 @@ LEARNER_ARGUMENTS = frozenset(
         "exploration_fraction",
         "exploration_initial_eps",
         "exploration_final_eps",
+        "exploration_steps",
         "max_grad_norm",
         "planning_sweeps",
         "planning_interval",

@@ -137,6 +137,20 @@ def same_weight(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float]
     return bool(np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-3)
 
 
+def unique_weights(weights: Sequence[np.ndarray]) -> np.ndarray:
+    """
+    The weights without repeats (the same weight by :func:`same_weight`), in the order of their first appearance.
+
+    :param weights: weight vectors of one length
+    :return: shape ``(k, d)``
+    """
+    kept: list[np.ndarray] = []
+    for w in weights:
+        if not any(same_weight(w, u) for u in kept):
+            kept.append(np.asarray(w, dtype=np.float64))
+    return np.array(kept)
+
+
 def format_weights(w: Sequence[float]) -> str:
     """``[0.2,0.8]``: weights rounded to 3 decimals, the one way output, labels and legends write them."""
     return "[" + ",".join(f"{x:g}" for x in np.round(w, 3)) + "]"

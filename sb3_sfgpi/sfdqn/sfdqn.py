@@ -22,6 +22,7 @@ from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.vec_env import make_mo_vec_env, vec_env_reward_dim, wrap_mo_env
 from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.options import (
     check_options,
@@ -72,6 +73,9 @@ class SFDQN(OffPolicyAlgorithm):
     :param exploration_fraction: Fraction of training over which the exploration rate is reduced
     :param exploration_initial_eps: Initial value of random action probability
     :param exploration_final_eps: Final value of random action probability
+    :param exploration_steps: where given, ε falls from its initial to its final value over the learner's first
+        ``exploration_steps`` env steps, counted across calls of :meth:`learn` (a learner that goes on learning
+        over OLS's iterations explores once, as GPI-LS's), instead of over ``exploration_fraction`` of each call
     :param max_grad_norm: The maximum value for the gradient clipping (not used by the tabular policy)
     :param planning_sweeps: Dyna-style planning (``TabularPolicy`` only): every ``planning_interval`` env steps,
         up to this many sweeps of the SF backup over every pair recorded in the replay buffer
@@ -99,6 +103,7 @@ class SFDQN(OffPolicyAlgorithm):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "MlpPolicy": MlpPolicy,
         "TabularPolicy": TabularPolicy,
+        "ConditionedMlpPolicy": ConditionedPolicy,
     }
     policy: SFDQNPolicy
     replay_buffer: MOReplayBuffer
@@ -124,6 +129,7 @@ class SFDQN(OffPolicyAlgorithm):
         exploration_fraction: float = 0.1,
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.05,
+        exploration_steps: int | None = None,
         max_grad_norm: float = 10,
         planning_sweeps: int = 0,
         planning_interval: int = 5_000,
@@ -181,6 +187,11 @@ class SFDQN(OffPolicyAlgorithm):
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
         self.exploration_fraction = exploration_fraction
+        if exploration_steps is not None and (isinstance(exploration_steps, bool) or exploration_steps < 1):
+            raise ValueError(f"exploration_steps must be a positive number of steps or None, got {exploration_steps!r}")
+        self.exploration_steps = exploration_steps
+        #: the weights a ConditionedMlpPolicy trains beside its own and acts over by GPI, shape ``(k, d)`` (None: none)
+        self.weight_support: np.ndarray | None = None
         self.target_update_interval = target_update_interval
         self._n_calls = 0
         self.max_grad_norm = max_grad_norm
@@ -207,15 +218,21 @@ class SFDQN(OffPolicyAlgorithm):
         self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "reward_dim": self.reward_dim}
         self.policy_kwargs = {**self.policy_kwargs, "reward_dim": self.reward_dim}
         super()._setup_model()
-        self.exploration_schedule = LinearSchedule(
-            self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
-        )
+        fraction = self.exploration_fraction if self.exploration_steps is None else 1.0  # of exploration_steps
+        self.exploration_schedule = LinearSchedule(self.exploration_initial_eps, self.exploration_final_eps, fraction)
         self.set_weights(self._weights)
+        if self.weight_support is not None:
+            self.set_weight_support(self.weight_support)
         reward_space = self.env.get_attr("reward_space", indices=[0])[0] if self.env is not None else None
         bounds = (reward_space.low, reward_space.high) if reward_space is not None else ([np.inf], [np.inf])
         self.optimistic_value = optimistic_value(self.optimistic_init, *bounds)
         if self.optimistic_value:
             self.policy.fill(self.optimistic_value)  # type: ignore[attr-defined]
+
+    @property
+    def conditioned(self) -> bool:
+        """Whether the policy is conditioned on the weights (``ConditionedMlpPolicy``): one learner for every weight."""
+        return isinstance(self.policy, ConditionedPolicy)
 
     @property
     def weights(self) -> np.ndarray:
@@ -231,6 +248,21 @@ class SFDQN(OffPolicyAlgorithm):
         """
         self._weights = validate_weights(weights, self.reward_dim)
         self.policy.weights.copy_(th.as_tensor(self._weights, dtype=th.float32))
+
+    def set_weight_support(self, support: np.ndarray | list[list[float]]) -> None:
+        """
+        The weights a ``ConditionedMlpPolicy`` learns beside its own and acts over by GPI (OLS's support).
+
+        :param support: weights, shape ``(k, d)``, each validated as :meth:`set_weights` does
+        :raises ValueError: a policy that is not conditioned on the weights, or bad weights
+        """
+        if not self.conditioned:
+            raise ValueError(f"a weight support is for ConditionedMlpPolicy, not {type(self.policy).__name__}")
+        rows = [validate_weights(w, self.reward_dim, "support weights") for w in np.asarray(support, dtype=np.float64)]
+        if not rows:
+            raise ValueError("the weight support must hold at least one weight")
+        self.weight_support = np.array(rows)
+        self.policy.set_support(self.weight_support)
 
     def successor_features(self, observation: np.ndarray) -> np.ndarray:
         """
@@ -274,7 +306,10 @@ class SFDQN(OffPolicyAlgorithm):
         self._n_calls += 1
         if self._n_calls % max(self.target_update_interval // self.n_envs, 1) == 0:
             self.policy.update_target(self.tau)
-        self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
+        if self.exploration_steps is None:
+            self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
+        else:
+            self.exploration_rate = self.exploration_schedule(1.0 - self.num_timesteps / self.exploration_steps)
         self.logger.record("rollout/exploration_rate", self.exploration_rate)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:

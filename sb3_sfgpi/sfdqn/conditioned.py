@@ -1,0 +1,239 @@
+"""Weight-conditioned successor features: one network ``ψ(s, a, w)`` learned for every weight of a support at once.
+
+A per-weight SF network learns only from the transitions scalarised by its own ``w``: on a sparse problem such as
+minecart a learner for an ore-only weight needs 40,000-90,000 steps before its first ore, and OLS gives it one
+iteration. :class:`ConditionedSFNetwork` takes the weight as an input (the state's features times the weight's
+features, as in Alegre et al.'s GPI-LS), so that every minibatch trains it for the iteration's weight and for the
+weights OLS already holds (its *support*), and :class:`ConditionedPolicy` acts by GPI over that support: what was
+learned for one weight is there for every other one.
+
+As a member of Π a conditioned network is bound to one weight (its ``member_weights`` buffer, saved with it):
+called without a weight, it gives ``ψ(s, ·, w_member)``, so GPI over Π treats it as any other SF network.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.common.type_aliases import PyTorchObs
+from stable_baselines3.common.vec_env import VecNormalize
+from torch import nn
+from torch.nn import functional as F
+
+from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.sfdqn.networks import greedy_actions, scalarize
+from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
+
+#: The hidden layers of a conditioned network unless told otherwise (GPI-LS's on minecart).
+CONDITIONED_NET_ARCH = [256, 256, 256, 256]
+
+
+class ConditionedSFNetwork(BasePolicy):
+    """
+    ``ψ(s, ·, w)``: the state's features and the weight's features (one layer each, ``net_arch[0]`` units), their
+    element-wise product, then ``net_arch[1:]`` with layer normalisation, to ``n_actions × d`` outputs.
+
+    :param observation_space: Observation space
+    :param action_space: Action space (Discrete)
+    :param features_extractor: Features extractor (parameter-free: ``FlattenExtractor``)
+    :param features_dim: Number of features
+    :param reward_dim: Number of objectives ``d``
+    :param net_arch: Hidden layer sizes (at least one)
+    :param activation_fn: Activation function
+    :param normalize_images: Whether to divide images by 255
+    """
+
+    action_space: spaces.Discrete
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        features_extractor: BaseFeaturesExtractor,
+        features_dim: int,
+        reward_dim: int,
+        net_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        normalize_images: bool = True,
+    ):
+        super().__init__(
+            observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
+        )
+        self.net_arch = list(CONDITIONED_NET_ARCH if net_arch is None else net_arch)
+        if not self.net_arch:
+            raise ValueError("a conditioned SF network needs at least one hidden layer (net_arch)")
+        self.activation_fn = activation_fn
+        self.features_dim = features_dim
+        self.reward_dim = reward_dim
+        self.n_actions = int(action_space.n)
+        width = self.net_arch[0]
+        self.state_features = nn.Sequential(nn.Linear(features_dim, width), activation_fn())
+        self.weight_features = nn.Sequential(nn.Linear(reward_dim, width), activation_fn())
+        layers: list[nn.Module] = []
+        for n_in, n_out in itertools.pairwise(self.net_arch):
+            layers += [nn.Linear(n_in, n_out), nn.LayerNorm(n_out), activation_fn()]
+        layers.append(nn.Linear(self.net_arch[-1], self.n_actions * reward_dim))
+        self.sf_net = nn.Sequential(*layers)
+        self.register_buffer("member_weights", th.full((reward_dim,), 1.0 / reward_dim))
+
+    def forward(self, obs: PyTorchObs, weights: th.Tensor | None = None) -> th.Tensor:
+        """
+        :param obs: Observation batch
+        :param weights: the weights to condition on, shape ``(d,)`` or ``(batch, d)``; None: ``member_weights``
+        :return: ``ψ(s, ·, w)``, shape ``(batch, n_actions, d)``
+        """
+        features = self.extract_features(obs, self.features_extractor)
+        weights = self.member_weights if weights is None else weights
+        mixed = self.state_features(features) * self.weight_features(weights.expand(len(features), -1))
+        return self.sf_net(mixed).view(-1, self.n_actions, self.reward_dim)
+
+    def bound_to(self, weights: np.ndarray) -> ConditionedSFNetwork:
+        """
+        A copy of this network bound to ``weights``: a policy of Π, ``ψ(s, ·, weights)`` when called without one.
+
+        :param weights: the member's weights, shape ``(d,)``
+        """
+        member = copy.deepcopy(self)
+        member.member_weights.copy_(th.as_tensor(weights, dtype=th.float32))
+        member.set_training_mode(False)
+        return member
+
+    def follow(self, network: ConditionedSFNetwork) -> None:
+        """Take ``network``'s parameters (a learner's latest), keeping the weights this member is bound to."""
+        self.load_state_dict({**network.state_dict(), "member_weights": self.member_weights.clone()})
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        raise NotImplementedError("an SF network has no policy of its own: use SFDQNPolicy or GPIPolicy to act")
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            net_arch=self.net_arch,
+            features_dim=self.features_dim,
+            reward_dim=self.reward_dim,
+            activation_fn=self.activation_fn,
+            features_extractor=self.features_extractor,
+        )
+        return data
+
+
+class ConditionedPolicy(SFDQNPolicy):
+    """
+    SFDQN's policy over a :class:`ConditionedSFNetwork`: trained for its weights and its support, acting by GPI.
+
+    Each gradient step samples one batch of transitions and learns it twice in one pass: for the policy's weights
+    ``w`` and, where the support holds other weights, for support weights drawn uniformly (one per transition).
+    The target of a transition for weight ``w'`` is ``r + γ (1 − terminated) ψ_target(s', a*, w')`` with
+    ``a* = argmax_a w' · ψ(s', a, w')`` (online network picks, target network evaluates).
+
+    Acting for weights ``w`` is GPI over the support and ``w`` itself:
+    ``argmax_a max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``: what the network learned for the other weights of
+    the support serves ``w`` too.
+
+    :param observation_space: Observation space
+    :param action_space: Action space (Discrete)
+    :param lr_schedule: Learning rate schedule
+    :param reward_dim: Number of objectives ``d``
+    :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
+    :param kwargs: further :class:`~sb3_sfgpi.sfdqn.policies.SFDQNPolicy` arguments
+    """
+
+    sf_net: ConditionedSFNetwork
+    sf_net_target: ConditionedSFNetwork
+
+    def __init__(self, *args: Any, net_arch: list[int] | None = None, **kwargs: Any):
+        super().__init__(*args, net_arch=list(CONDITIONED_NET_ARCH if net_arch is None else net_arch), **kwargs)
+        #: the weights trained beside ``weights`` and acted over by GPI, shape ``(k, d)`` (set by SFDQN)
+        self.support = self.weights.reshape(1, -1).clone()
+
+    def make_sf_net(self) -> ConditionedSFNetwork:  # type: ignore[override]
+        """A new conditioned SF network with its own features extractor."""
+        features_extractor = self.make_features_extractor()
+        return ConditionedSFNetwork(
+            self.observation_space,
+            self.action_space,  # type: ignore[arg-type]
+            features_extractor,
+            features_extractor.features_dim,
+            self.reward_dim,
+            net_arch=self.net_arch,
+            activation_fn=self.activation_fn,
+            normalize_images=self.normalize_images,
+        ).to(self.device)
+
+    def set_support(self, support: np.ndarray) -> None:
+        """
+        :param support: the weights to train beside the policy's own and to act over by GPI, shape ``(k, d)``
+        """
+        self.support = th.as_tensor(np.asarray(support, dtype=np.float32).reshape(-1, self.reward_dim)).to(self.device)
+
+    def _gpi_q(self, obs_tensor: th.Tensor, weights: th.Tensor) -> th.Tensor:
+        """``max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``, shape ``(batch, n_actions)``."""
+        members = th.cat([self.support.to(weights.device), weights.reshape(1, -1)])
+        batch = len(obs_tensor)
+        obs_each = obs_tensor.repeat(len(members), *([1] * (obs_tensor.dim() - 1)))
+        psi = self.sf_net(obs_each, members.repeat_interleave(batch, dim=0))
+        return scalarize(psi, weights).view(len(members), batch, -1).max(dim=0).values
+
+    def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        return self._gpi_q(obs, self.weights).argmax(dim=1)  # type: ignore[arg-type]
+
+    def greedy(
+        self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
+    ) -> tuple[np.ndarray, bool]:
+        """GPI's action for ``w`` over the support (see :meth:`SFDQNPolicy.greedy`; ties go to the first)."""
+        q_values, vectorized = self.q_values(observation, weights)
+        return q_values.argmax(axis=1), vectorized
+
+    def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+        """GPI's action values for ``w`` over the support, for one observation or a batch."""
+        self.set_training_mode(False)
+        obs_tensor, vectorized = self.obs_to_tensor(observation)
+        with th.no_grad():
+            weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
+            return self._gpi_q(obs_tensor, weights_tensor).cpu().numpy(), vectorized  # type: ignore[arg-type]
+
+    def td_update(
+        self,
+        replay_buffer: MOReplayBuffer,
+        batch_size: int,
+        gamma: float,
+        max_grad_norm: float,
+        vec_normalize_env: VecNormalize | None = None,
+    ) -> float:
+        """
+        One gradient step on a sampled batch, for the policy's weights and for support weights (see the class), Huber
+        loss averaged over batch and objectives, gradient norm clipped.
+
+        :return: the loss before the step
+        """
+        batch = replay_buffer.sample(batch_size, env=vec_normalize_env)
+        weights = self.weights.expand(batch_size, -1)
+        copies = 1
+        if len(self.support) > 1:
+            drawn = th.randint(len(self.support), (batch_size,), device=self.support.device)
+            weights, copies = th.cat([weights, self.support[drawn].to(weights.device)]), 2
+
+        def twice(x: th.Tensor) -> th.Tensor:
+            return x.repeat(copies, *([1] * (x.dim() - 1)))
+
+        observations, next_observations = twice(batch.observations), twice(batch.next_observations)  # type: ignore[arg-type]
+        masks = None if batch.next_action_masks is None else twice(batch.next_action_masks)
+        rows = th.arange(len(weights), device=weights.device)
+        with th.no_grad():
+            next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
+            next_psi = self.sf_net_target(next_observations, weights)[rows, next_actions]
+            target_psi = twice(batch.rewards) + (1 - twice(batch.dones)) * gamma * next_psi
+        current_psi = self.sf_net(observations, weights)[rows, twice(batch.actions).long().flatten()]
+        loss = F.smooth_l1_loss(current_psi, target_psi)
+        self.optimizer.zero_grad()
+        loss.backward()
+        th.nn.utils.clip_grad_norm_(self.sf_net.parameters(), max_grad_norm)
+        self.optimizer.step()
+        return loss.item()

@@ -1,0 +1,176 @@
+"""Weight-conditioned successor features (``ConditionedMlpPolicy``): exact SFs for every support weight, GPI over the
+support, Π members bound to their weights, safe files, exploration counted across calls of ``learn``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+from momdp import Fig1MOMDP, observation, optimal_policy, optimal_value, policy_of, policy_value, successor_features
+
+from sb3_sfgpi import MASFOLS, GPIPolicy
+from sb3_sfgpi.common.weights import unique_weights
+from sb3_sfgpi.policy_files import CorruptPolicySetError
+from sb3_sfgpi.sfdqn import SFDQN
+from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
+from sb3_sfgpi.sfdqn.training_state import restore_training_state, training_state
+
+#: Weights whose optimal policy has no tie in any state (its SFs are unique): one per CCS point of different actions
+SUPPORT = np.array([[0.8, 0.2], [0.3, 0.7]])
+GAMMA = 0.9
+
+
+@pytest.fixture(scope="module")
+def trained() -> SFDQN:
+    """One conditioned SFDQN trained for (0.8, 0.2) with the support above, on uniformly random transitions."""
+    model = SFDQN(
+        "ConditionedMlpPolicy",
+        Fig1MOMDP(one_hot=True),
+        weights=SUPPORT[0],
+        learning_rate=1e-3,
+        gamma=GAMMA,
+        batch_size=64,
+        train_freq=1,
+        learning_starts=200,
+        target_update_interval=100,
+        exploration_initial_eps=1.0,
+        exploration_final_eps=1.0,  # uniform behaviour: every pair is in the buffer
+        buffer_size=5_000,
+        policy_kwargs=dict(net_arch=[64, 64]),
+        seed=0,
+    )
+    model.set_weight_support(SUPPORT)
+    model.learn(4_000)
+    return model
+
+
+def _psi(model: SFDQN, state: int, w: np.ndarray) -> np.ndarray:
+    obs = th.as_tensor(observation(state, one_hot=True)).reshape(1, -1)
+    with th.no_grad():
+        return model.policy.sf_net(obs, th.as_tensor(w, dtype=th.float32))[0].numpy()
+
+
+@pytest.mark.parametrize("w", SUPPORT.tolist())
+def test_learns_the_optimal_successor_features_of_every_support_weight(trained, w):
+    exact = successor_features(optimal_policy(w, GAMMA), GAMMA)
+    for state in range(4):
+        np.testing.assert_allclose(_psi(trained, state, np.array(w)), exact[state], atol=0.5)
+
+
+@pytest.mark.parametrize("w", [*SUPPORT.tolist(), [0.5, 0.5], [0.9, 0.1], [0.1, 0.9]])
+def test_gpi_over_the_support_acts_optimally(trained, w):
+    policy = policy_of(lambda s: trained.predict(observation(s, one_hot=True), deterministic=True, w=w)[0])
+    assert np.dot(w, policy_value(policy, GAMMA)) >= optimal_value(w, GAMMA) - 1e-6
+
+
+def test_members_of_the_set_are_bound_to_their_weights_and_saved_safely(trained, tmp_path):
+    policy_set = GPIPolicy()
+    for w in SUPPORT:
+        policy_set.add(trained, weights=w)
+    obs = np.eye(5, dtype=np.float32)[:4]
+    for i, w in enumerate(SUPPORT):
+        member = policy_set.networks[i]
+        assert isinstance(member, ConditionedSFNetwork)
+        np.testing.assert_allclose(member.member_weights.numpy(), w)
+        expected = np.stack([_psi(trained, s, w) for s in range(4)])
+        np.testing.assert_allclose(
+            member(th.as_tensor(obs)).numpy(), expected, rtol=1e-5, atol=1e-4
+        )  # batched: other roundings
+    policy_set.save(tmp_path / "set")
+    loaded = GPIPolicy.load(tmp_path / "set")
+    for w in [[0.3, 0.7], [1.0, 0.0]]:
+        np.testing.assert_array_equal(loaded.q_values(obs, w), policy_set.q_values(obs, w))
+    state = th.load(tmp_path / "set" / "policy_001.pt", weights_only=True)
+    state["member_weights"] = th.tensor([0.5, 0.5])  # the file says another policy than the manifest
+    th.save(state, tmp_path / "set" / "policy_001.pt")
+    with pytest.raises(CorruptPolicySetError, match="bound to the weights"):
+        GPIPolicy.load(tmp_path / "set")
+
+
+def test_exploration_steps_count_across_calls_of_learn():
+    model = SFDQN(
+        "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), exploration_steps=100, exploration_final_eps=0.1,
+        learning_starts=1_000, policy_kwargs=dict(net_arch=[8]), seed=0,
+    )  # fmt: skip
+    model.learn(40)
+    assert model.exploration_rate == pytest.approx(1.0 - 0.9 * 40 / 100)
+    model.learn(40, reset_num_timesteps=False)
+    assert model.exploration_rate == pytest.approx(1.0 - 0.9 * 80 / 100)
+    model.learn(40, reset_num_timesteps=False)
+    assert model.exploration_rate == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="exploration_steps"):
+        SFDQN("MlpPolicy", Fig1MOMDP(one_hot=True), exploration_steps=0)
+
+
+def test_support_is_for_conditioned_policies_and_survives_save_and_load(trained, tmp_path):
+    with pytest.raises(ValueError, match="ConditionedMlpPolicy"):
+        SFDQN("MlpPolicy", Fig1MOMDP(one_hot=True)).set_weight_support(SUPPORT)
+    with pytest.raises(ValueError, match="non-negative"):
+        trained.set_weight_support([[1.0, -1.0]])
+    trained.save(tmp_path / "model.zip")
+    loaded = SFDQN.load(tmp_path / "model.zip")
+    np.testing.assert_array_equal(loaded.weight_support, SUPPORT)
+    np.testing.assert_array_equal(loaded.policy.support.numpy(), SUPPORT.astype(np.float32))
+    obs = observation(0, one_hot=True)
+    for w in ([0.3, 0.7], [0.5, 0.5]):
+        assert loaded.predict(obs, deterministic=True, w=w)[0] == trained.predict(obs, deterministic=True, w=w)[0]
+
+
+def _masfols(run_dir=None, **kwargs) -> MASFOLS:
+    learner_kwargs = dict(
+        gamma=GAMMA, learning_rate=1e-3, learning_starts=100, train_freq=1, batch_size=32, buffer_size=5_000,
+        target_update_interval=100, exploration_steps=600, policy_kwargs=dict(net_arch=[32, 32]),
+    )  # fmt: skip
+    return MASFOLS(
+        Fig1MOMDP(one_hot=True), policy="ConditionedMlpPolicy", steps_per_iteration=300, learner_kwargs=learner_kwargs,
+        run_dir=run_dir, seed=0, **kwargs,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def three_iterations() -> MASFOLS:
+    model = _masfols()
+    model.learn(max_iterations=3)
+    return model
+
+
+def test_one_learner_goes_on_over_the_iterations_for_the_support(three_iterations):
+    (learner,) = three_iterations.runner.learners.values()
+    assert learner.num_timesteps == 900 and learner.replay_buffer.buffer_size == 5_000  # not cut to one iteration
+    trained = [np.array(row["weights_trained"]["agent_0"]) for row in three_iterations.history]
+    np.testing.assert_allclose(learner.weight_support, unique_weights(trained))
+    record = three_iterations.callback.record
+    for net, info in zip(record.networks, record.infos, strict=True):  # every member follows the latest network
+        assert isinstance(net, ConditionedSFNetwork)
+        np.testing.assert_allclose(net.member_weights.numpy(), info.weights, atol=1e-7)
+        state = {k: v for k, v in net.state_dict().items() if k != "member_weights"}
+        for key, value in state.items():
+            assert th.equal(value, learner.policy.sf_net.state_dict()[key])
+
+
+def test_a_resumed_run_goes_on_exactly(three_iterations, tmp_path):
+    _masfols(tmp_path / "run").learn(max_iterations=1)
+    resumed = MASFOLS.load(tmp_path / "run", Fig1MOMDP(one_hot=True))
+    resumed.learn(max_iterations=3)
+    assert [row["mean_return"] for row in resumed.history] == [row["mean_return"] for row in three_iterations.history]
+    (learner,) = resumed.runner.learners.values()
+    (reference,) = three_iterations.runner.learners.values()
+    for key, value in reference.policy.state_dict().items():
+        assert th.equal(value, learner.policy.state_dict()[key]), key
+    assert [path.name for path in (tmp_path / "run" / "learners").iterdir()] == ["iteration_003.pt"]
+
+
+def test_a_saved_learner_state_that_does_not_fit_is_refused(three_iterations):
+    (learner,) = three_iterations.runner.learners.values()
+    state = training_state(learner)
+    state["replay"]["rewards"] = th.zeros(10, 1, 3)  # three objectives for a learner of two
+    with pytest.raises(ValueError, match="'rewards' does not fit"):
+        restore_training_state(learner, state)
+    state = training_state(learner)
+    state["replay"]["observations"][0, 0, 0] = float("nan")
+    with pytest.raises(ValueError, match="non-finite"):
+        restore_training_state(learner, state)
+    state = training_state(learner)
+    del state["optimizer"]
+    with pytest.raises(ValueError, match="does not fit"):
+        restore_training_state(learner, state)
