@@ -15,6 +15,10 @@ Rules for the code blocks (fenced blocks of ``README.md`` and ``docs/**/*.md``):
   - set-up and other commands are checked, not run: ``bash FILE`` and ``python FILE`` need the file in the
     repository, ``python -m MODULE`` the module, ``pip`` and other programs must be on ``PATH``.
 
+* Commands written inline (`` `sb3-sfgpi ...` ``, `` `python -m benchmarks ...` ``, `` `python examples/...` `` in the
+  text of README.md and docs/, outside code blocks) are parsed by the parser of the program they name: the CLI's,
+  the benchmarks' or the example's (run up to its parser, which stops it), and so are the benchmark and example
+  commands of shell blocks: a reader who copies one gets no argparse error.
 * A block is skipped only when the line before its fence is ``<!-- no-test: REASON -->`` with a reason.
 * Other languages (``text``, ``json``, ...) are not code and are not run.
 
@@ -24,9 +28,12 @@ errors (``-W --keep-going``); every name of ``sb3_sfgpi.__all__`` and ``sfgpi_en
 
 from __future__ import annotations
 
+import argparse
 import contextlib
+import functools
 import importlib
 import importlib.util
+import inspect
 import io
 import os
 import re
@@ -34,8 +41,10 @@ import shlex
 import shutil
 import sys
 import types
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from unittest import mock
 
 import pytest
 from sfgpi_envs.traffic.sumo_backend import SumoNotFoundError
@@ -47,6 +56,8 @@ SHELL = {"bash", "console", "shell", "sh"}
 NO_TEST = re.compile(r"^<!--\s*no-test:\s*(\S.*?)\s*-->$")
 FENCE = re.compile(r"^(`{3,}|~{3,})\s*([^\s`]*)")
 TINY_BUDGET = ["--iterations", "1", "--steps-per-iteration", "200", "--no-progress"]
+#: A command written inline in a page's text: the CLI, a benchmark or an example.
+INLINE_COMMAND = re.compile(r"`((?:sb3-sfgpi|python -m benchmarks|python examples/)[^`]*)`")
 
 
 @dataclass
@@ -106,6 +117,64 @@ def shell_commands(code: str) -> list[list[str]]:
             else:
                 command.append(word)
     return commands
+
+
+def inline_commands(path: Path) -> list[tuple[int, list[str]]]:
+    """The commands written inline in the text of a Markdown file (outside code fences), with their line numbers."""
+    commands, fence = [], None
+    for number, line in enumerate(path.read_text(encoding="utf-8").split("\n"), start=1):
+        match = FENCE.match(line)
+        if match and (fence is None or line.startswith(fence)):
+            fence = match.group(1) if fence is None else None
+            continue
+        if fence is None:
+            commands += [(number, shlex.split(command)) for command in INLINE_COMMAND.findall(line)]
+    return commands
+
+
+class _Parsed(Exception):
+    """Raised by the patched parser once a program's arguments parsed: the program goes no further."""
+
+
+def parse_program(main: Callable[[], object], argv: list[str], name: str) -> None:
+    """Run ``main`` (which parses ``argv`` with argparse) up to its parser: fail where the parser refuses ``argv``."""
+    parse_args = argparse.ArgumentParser.parse_args
+
+    def parse_and_stop(parser: argparse.ArgumentParser, args: object = None, namespace: object = None) -> None:
+        parse_args(parser, args, namespace)
+        raise _Parsed
+
+    stderr = io.StringIO()
+    with (
+        mock.patch.object(argparse.ArgumentParser, "parse_args", parse_and_stop),
+        mock.patch.object(sys, "argv", [name, *argv]),
+        contextlib.redirect_stderr(stderr),
+    ):
+        try:
+            main()
+        except _Parsed:
+            return
+        except SystemExit as error:
+            if error.code == 0:  # --help
+                return
+            raise AssertionError(f"{name} {' '.join(argv)}: its parser refuses it: {stderr.getvalue()}") from error
+    raise AssertionError(f"{name} {' '.join(argv)}: it parsed no arguments")
+
+
+def parse_python(args: list[str]) -> None:
+    """Parse ``python -m benchmarks ...`` or ``python examples/X.py ...`` with the program's own parser."""
+    if args[:2] == ["-m", "benchmarks"]:
+        from benchmarks.__main__ import main as benchmarks_main
+
+        parse_program(lambda: benchmarks_main(args[2:]), args[2:], "python -m benchmarks")
+    elif args[0].startswith("examples/") and args[0].endswith(".py"):
+        spec = importlib.util.spec_from_file_location(f"_docs_{Path(args[0]).stem}", ROOT / args[0])
+        assert spec and spec.loader, f"python {args[0]}: no such file in the repository"
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        entry = getattr(module, "parse_args", None) or module.main
+        takes_argv = bool(inspect.signature(entry).parameters)  # parse_args(argv) or parse_args() reading sys.argv
+        parse_program(functools.partial(entry, args[1:]) if takes_argv else entry, args[1:], f"python {args[0]}")
 
 
 _TRAINED: dict[str, Path] = {}  # algorithm -> a tiny four-room run this process trained (tmp dirs live on)
@@ -187,6 +256,7 @@ def check_command(argv: list[str], state: CliState) -> None:
             assert found, f"python -m {module}: no such module"
         else:
             assert (ROOT / args[0]).is_file(), f"python {args[0]}: no such file in the repository"
+        parse_python(args)
     else:
         assert shutil.which(program), f"{program}: not on PATH"
 
@@ -229,6 +299,40 @@ def test_code_blocks_run(path: Path, in_tmp_dir, monkeypatch) -> None:
                         check_command(argv, state)
                     except AssertionError as error:
                         raise AssertionError(f"{where}: {error}") from error
+
+
+@pytest.mark.parametrize("path", MARKDOWN, ids=[str(p.relative_to(ROOT)) for p in MARKDOWN])
+def test_inline_commands_parse(path: Path, monkeypatch) -> None:
+    from sb3_sfgpi.cli import main
+
+    monkeypatch.syspath_prepend(str(ROOT))
+    refused = []
+    for line, argv in inline_commands(path):
+        if argv[0] == "sb3-sfgpi" and len(argv) <= 2:
+            continue  # the program or one of its commands named, as `sb3-sfgpi compare` is
+        try:
+            if argv[0] == "sb3-sfgpi":
+                parse_program(functools.partial(main, argv[1:]), argv[1:], "sb3-sfgpi")
+            else:
+                parse_python(argv[1:])
+        except AssertionError as error:
+            refused.append(f"{path.relative_to(ROOT)}:{line}: {str(error).splitlines()[0]}")
+    assert not refused, "\n".join(refused)
+
+
+def test_the_inline_checks_can_fail(tmp_path, monkeypatch) -> None:
+    """An inline command with a removed option, or a benchmark's unknown option, is caught."""
+    monkeypatch.syspath_prepend(str(ROOT))
+    page = tmp_path / "page.md"
+    page.write_text("Run `sb3-sfgpi train four-room --sharing shared` or\n```bash\n`sb3-sfgpi x`\n```\n", "utf-8")
+    assert inline_commands(page) == [(1, ["sb3-sfgpi", "train", "four-room", "--sharing", "shared"])]
+    with pytest.raises(AssertionError, match="parser refuses"):
+        parse_cli(["train", "four-room", "--sharing", "shared"])
+    with pytest.raises(AssertionError, match="parser refuses"):
+        parse_python(["-m", "benchmarks", "known-fronts", "--no-such-option"])
+    with pytest.raises(AssertionError, match="parser refuses"):
+        parse_python(["examples/four_room.py", "--no-such-option"])
+    parse_python(["-m", "benchmarks", "known-fronts", "--seeds", "0"])  # a good one parses
 
 
 def test_the_block_checks_can_fail(tmp_path, monkeypatch) -> None:
