@@ -5,10 +5,10 @@
     python -m benchmarks gpi ols         # some: gpi training planning ols traffic memory optimum sharing
                                          # copies ray-eval startup admission tabular tabular-peer sweep
                                          # sweep-fig4, and sweep-fig4-preset,
-                                         # known-fronts, known-fronts-minecart (only when named)
+                                         # known-fronts, deep-fronts (only when named)
     python -m benchmarks --output results.md
     python -m benchmarks known-fronts --seeds 0 1 2 --envs deep-sea-treasure resource-gathering fruit-tree
-    python -m benchmarks known-fronts-minecart --seeds 0 --peer-steps 150000   # GPI-PD's published budget
+    python -m benchmarks deep-fronts --seeds 0 1 2        # minecart(-deterministic), 15 × 10,000 steps
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
 repeats; the ratio is candidate speed / baseline speed (or baseline bytes / candidate bytes for memory),
@@ -51,10 +51,10 @@ BENCHMARKS = {
     "sweep-fig4": "benchmarks.bench_sweep:run_fig4",
     "sweep-fig4-preset": "benchmarks.bench_sweep:run_fig4_preset",
     "known-fronts": "benchmarks.bench_known_fronts",
-    "known-fronts-minecart": "benchmarks.bench_known_fronts:run_minecart",
+    "deep-fronts": "benchmarks.bench_known_fronts:run_deep",
 }
 #: Run only when named (each takes many minutes on 2 cores), not in the default "everything".
-ON_REQUEST = ("sweep-fig4-preset", "known-fronts", "known-fronts-minecart")
+ON_REQUEST = ("sweep-fig4-preset", "known-fronts", "deep-fronts")
 
 
 def _cpu_model() -> str:

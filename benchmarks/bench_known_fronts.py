@@ -17,10 +17,11 @@ scored on 50 Dirichlet(1) test weights (``random_weights(d, 50, rng=0)``):
 Rows: per problem, EU/EU* mean ± std over the seeds with the per-seed values, then one row per seed (wall time of
 training with its per-iteration evaluations, env steps of training, |Π|). Where ``morl_baselines`` imports, a peer
 of it trains with the same env steps per problem (``peer_steps`` / ``--peer-steps`` sets its own) and its GPI is
-scored the same way: MPMOQLearning (OLS weights, GPI, Dyna) on the tabular problems, GPI-PD (GPI-LS weights, PER,
-Dyna; its minecart example's settings, :data:`GPI_PD_SETTINGS`) on minecart, whose EU is then Monte Carlo by the
+scored the same way: MPMOQLearning (OLS weights, GPI, Dyna) on the tabular problems, GPI-LS (its minecart example's
+settings without PER and Dyna, :data:`GPI_LS_SETTINGS`, at our gradient updates per step) on the deep problems,
+whose EU is then Monte Carlo by the
 protocol of our test evaluation (:func:`rollout_expected_utility`: the same episodes' seeds per test weight).
-Minecart is slow and runs only when named (``known-fronts-minecart`` or ``--envs minecart``).
+The deep problems (minecart, minecart-deterministic) are slow and run only when named (``deep-fronts``, or ``--envs``).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from benchmarks._common import MORL_MISSING, Row
 from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.callbacks import ValueEstimation
-from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, TABULAR_LEARNER, TABULAR_POOL_REPLAY
+from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, TABULAR_LEARNER, TABULAR_POOL_REPLAY, gym_preset
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
@@ -77,8 +78,13 @@ PROBLEMS = {
     "deep-sea-treasure": Problem("deep-sea-treasure-v0", 10_000, 15, (1_500, 2), model=deep_sea_treasure_mdp),
     "resource-gathering": Problem("resource-gathering-v0", 10_000, 12, (1_500, 2), model=resource_gathering_mdp),
     "fruit-tree": Problem("fruit-tree-v0", 5_000, 25, (1_000, 2), {"depth": 6}, model=fruit_tree_mdp),
-    "minecart": Problem("minecart-v0", 20_000, 3, (1_500, 2), tabular=False, eval_episodes=1),
+    # GPI-PD's published budget (15 × 10,000); scored with the deep preset's γ, 0.98, as its minecart example
+    "minecart": Problem("minecart-v0", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1),
+    "minecart-deterministic": Problem(
+        "minecart-deterministic-v0", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1
+    ),  # fmt: skip
 }
+DEEP = ("minecart", "minecart-deterministic")
 DEFAULT = ("deep-sea-treasure", "resource-gathering", "fruit-tree")
 
 
@@ -106,7 +112,7 @@ def run(
     :param quick: the smoke run's tiny budgets
     :param seeds: the seeds (default 0, 1, 2)
     :param envs: problem names or Gymnasium ids (default: all but minecart)
-    :param peer_steps: the morl-baselines peers' env steps (default: ours; e.g. :data:`GPI_PD_PUBLISHED_STEPS`)
+    :param peer_steps: the morl-baselines peers' env steps (default: ours)
     """
     names = [_problem_name(env) for env in envs or DEFAULT]
     seeds = list(SEEDS if seeds is None else seeds)
@@ -117,14 +123,15 @@ def run(
     return rows
 
 
-def run_minecart(
+def run_deep(
     quick: bool = False,
     seeds: Sequence[int] | None = None,
     envs: Sequence[str] | None = None,
     peer_steps: int | None = None,
 ) -> list[Row]:
-    """Minecart alone (MLP learners, an approximate front; slow): ``python -m benchmarks known-fronts-minecart``."""
-    return run(quick, seeds, envs or ["minecart"], peer_steps)
+    """Minecart and minecart-deterministic (MLP learners, approximate fronts; slow): ``python -m benchmarks
+    deep-fronts``."""
+    return run(quick, seeds, envs or list(DEEP), peer_steps)
 
 
 def _problem_name(env: str) -> str:
@@ -183,9 +190,12 @@ def _train_sfols(
 ) -> Outcome:
     """One MASFOLS run with the preset's evaluation and admission, and GPI's EU over its final Π."""
     steps, iterations = problem.budget(quick)
+    preset = gym_preset(problem.env_id)
+    assert preset is not None, f"{problem.env_id} is not a registered Gymnasium id"
     masfols = MASFOLS(
         _make_env(problem), policy=policy, steps_per_iteration=steps, learner_kwargs=learner,
-        values=ValueEstimation(episodes=5), admission=Admission(validation_weights=50),
+        values=ValueEstimation(episodes=preset["value_episodes"]),
+        admission=Admission(validation_weights=preset["validation_weights"]),
         pool_replay=problem.tabular and TABULAR_POOL_REPLAY,
         evaluation=EvaluationConfig(weights, episodes=problem.eval_episodes), seed=seed,
     )  # fmt: skip
@@ -295,25 +305,41 @@ def _train_mpmoq(
     return agent
 
 
-#: GPI-PD's settings where its minecart example (morl-baselines' ``examples/gpi_pd_minecart.py``) sets other values
-#: than its constructor's defaults; γ is the problem's (0.99, the example's is 0.98), the rest its defaults (4 × 256
-#: SF network, 2 of them, 20 gradient updates per step from step 5,000, PER, Dyna with a 5-member ensemble).
-GPI_PD_SETTINGS = {
+#: GPI-LS's settings: morl-baselines' ``GPIPD`` with the settings of its minecart example
+#: (``examples/gpi_pd_minecart.py``: two 4 × 256 SF networks conditioned on w with a min target, replay 200,000, ε
+#: from 1 to 0.05 over 50,000 steps, target networks every 200 steps) and GPI-PD's own parts off (no prioritised
+#: replay, no learned model), as the GPI-PD paper's GPI-LS; γ is ours (the deep preset's 0.98, the example's) and so
+#: are its gradient updates per step.
+GPI_LS_SETTINGS = {
+    "num_nets": 2,
+    "max_grad_norm": None,
+    "learning_rate": 3e-4,
+    "batch_size": 128,
+    "net_arch": [256, 256, 256, 256],
     "buffer_size": 200_000,
     "initial_epsilon": 1.0,
     "final_epsilon": 0.05,
     "epsilon_decay_steps": 50_000,
+    "learning_starts": 100,
     "target_net_update_freq": 200,
+    "tau": 1,
+    "per": False,
+    "gpi_pd": False,
+    "dyna": False,
+    "use_gpi": True,
 }
-#: The env steps of GPI-PD's minecart example (15 iterations of 10,000): ``--peer-steps 150000``.
-GPI_PD_PUBLISHED_STEPS = 150_000
 
 
-def _train_gpi_pd(
+def _train_gpi_ls(
     algorithm: Any, problem: Problem, learner: dict[str, Any], seed: int, steps: int, iterations: int
 ) -> Any:
-    """GPI-PD with GPI-LS weights (its train's default), no wandb and no checkpoint files."""
-    agent = algorithm(_seeded_env(problem, seed), gamma=learner["gamma"], seed=seed, log=False, **GPI_PD_SETTINGS)
+    """GPI-LS at our gradient updates per step, no wandb and no checkpoint files."""
+    agent = algorithm(
+        _seeded_env(problem, seed), gamma=learner["gamma"], gradient_updates=learner.get("gradient_steps", 1),
+        seed=seed, log=False, device="cpu" if not th.cuda.is_available() else "auto", **GPI_LS_SETTINGS,
+    )  # fmt: skip
+    sample = agent._sample_batch_experiences  # morl-baselines 1.4 also returns the indices, which only PER unpacks
+    agent._sample_batch_experiences = lambda: tuple(sample())[:5]
     agent.train(
         total_timesteps=steps * iterations, eval_env=_seeded_env(problem, derive_seed(seed, "peer eval")),
         ref_point=np.zeros(agent.reward_dim), timesteps_per_iter=steps, weight_selection_algo="gpi-ls",
@@ -329,7 +355,7 @@ PEERS = {
         "MPMOQLearning (OLS, GPI, Dyna)", _train_mpmoq, lambda agent: len(agent.policies),
     ),
     False: Peer(  # deep problems
-        "morl_baselines.multi_policy.gpi_pd.gpi_pd", "GPIPD", "GPI-PD (GPI-LS weights, PER, Dyna)", _train_gpi_pd,
+        "morl_baselines.multi_policy.gpi_pd.gpi_pd", "GPIPD", "GPI-LS (GPIPD without PER and Dyna)", _train_gpi_ls,
         lambda agent: len(agent.weight_support), steps_per_iteration=10_000,  # its minecart example's
     ),
 }  # fmt: skip

@@ -38,7 +38,6 @@ from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.evaluation import gpi_score
-from sb3_sfgpi.masfols import REMOVED_SETTINGS, SETTING_DEFAULTS
 from sb3_sfgpi.run_directory import RunDirectory
 
 
@@ -155,17 +154,16 @@ def load(args: argparse.Namespace) -> tuple[Candidates, bool, bool]:
     :raises UsageError: a run of a domain that is not installed, or an env that refuses the run's settings
     """
     run_dir = RunDirectory(args.run_dir)
-    required = ("domain", "algorithm", "seed", "test_weights", "env_kwargs", "learner_kwargs", "eval_episodes")
-    config = {**SETTING_DEFAULTS, **run_dir.read_config(required=required)}
+    required = ("domain", "algorithm", "seed", "test_weights", "env_kwargs", "learner_kwargs", "eval_episodes",
+                "validation_weights", "prune", "value_mode", "pool_replay")  # fmt: skip
+    config = run_dir.read_config(required=required)
     if config["algorithm"] == "fixed":
         raise ValueError(f"{args.run_dir} is a run of fixed weights: its agents act by their own policies")
     if config["validation_weights"] or config["prune"]:
         raise ValueError(f"{args.run_dir} was trained with validation: replay needs --set validation_weights=0")
-    removed = [key for key, off in REMOVED_SETTINGS.items() if config.get(key, off) != off]
-    if removed or config.get("value_mode", "joint") not in VALUE_MODES:
-        levers = removed or [f"value_mode={config['value_mode']}"]
-        raise ValueError(f"{args.run_dir} was trained with {', '.join(levers)}, levers this version removed "
-                         "(Π in the training loop: validation would have changed its candidates)")  # fmt: skip
+    if config["value_mode"] not in VALUE_MODES:
+        raise ValueError(f"{args.run_dir} was trained with value_mode={config['value_mode']}, which this version "
+                         "does not have")  # fmt: skip
     if config["pool_replay"]:
         raise ValueError(f"{args.run_dir} pooled its replay: the SFs saved are its last iteration's, not those "
                          "validation would have scored")  # fmt: skip

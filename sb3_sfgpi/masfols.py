@@ -29,7 +29,7 @@ from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory, repl
 from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_logger import run_logger
-from sb3_sfgpi.run_settings import REMOVED_SETTINGS, SETTING_DEFAULTS, SETTINGS, acts_by_own_policies
+from sb3_sfgpi.run_settings import SETTINGS, acts_by_own_policies
 from sb3_sfgpi.schedules import make_schedule
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
@@ -176,15 +176,12 @@ class MASFOLS:
         :param env: the env, built as for the run
         :param kwargs: what is not stored: ``env_fn``, ``verbose``, and ``eval_workers`` (worker processes of the
             GPI evaluation)
-        :raises ValueError: not a run directory, a stored setting missing, or one of a lever this version removed
+        :raises ValueError: not a run directory, a run file of another format version, or a stored setting missing
         """
-        config = {**SETTING_DEFAULTS, **RunDirectory(run_dir).read_config()}
+        config = RunDirectory(run_dir).read_config()
         missing = [key for key in SETTINGS if key not in config]
         if missing:
             raise ValueError(f"{run_dir}/run.json lacks the settings {missing}: not a run of MASFOLS")
-        removed = [key for key, off in REMOVED_SETTINGS.items() if config.get(key, off) != off]
-        if removed:
-            raise ValueError(f"{run_dir} was trained with {removed}, levers this version removed (docs: levers page)")
         unknown = set(kwargs) - {"env_fn", "verbose", "eval_workers"}
         if unknown:
             raise ValueError(f"MASFOLS.load takes env_fn, verbose and eval_workers, not {sorted(unknown)}")

@@ -2,8 +2,7 @@
 
 A policy file holds the network's state dict (tensors only, read with ``weights_only=True``); a table is stored as
 its stored rows: ``"table.rows"`` (their indices), ``"table.values"`` (the rows), ``"table.shape"`` and, where it is
-not zero, ``"table.default"`` (the value of every other row), instead of the dense ``"table.weight"`` of older
-versions (which is read too). Reading never runs code.
+not zero, ``"table.default"`` (the value of every other row). Reading never runs code.
 """
 
 from __future__ import annotations
@@ -59,21 +58,6 @@ MLP_KINDS: dict[str, type[SFNetwork] | type[ConditionedSFNetwork]] = {
 }
 
 
-def _check_one_head(spec: dict[str, Any]) -> None:
-    """
-    Refuse the spec of a multi-head MLP. Versions that had them wrote ``n_critics``: ``1``, the plain network, loads
-    as a spec without the key does.
-
-    :raises ValueError: ``n_critics`` other than 1
-    """
-    n_critics = spec.get("n_critics", 1)
-    if type(n_critics) is not int or n_critics != 1:  # not True, not 1.0
-        raise ValueError(
-            f"the network spec has n_critics={n_critics!r}: multi-head (pessimistic) SF networks were removed in this "
-            "version; only n_critics=1 loads"
-        )
-
-
 def build_network(
     spec: dict[str, Any], observation_space: spaces.Space, action_space: spaces.Discrete, reward_dim: int
 ) -> nn.Module:
@@ -88,7 +72,6 @@ def build_network(
         if spec.get("activation_fn") not in _ACTIVATIONS:
             known = sorted(_ACTIVATIONS)
             raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {known}")
-        _check_one_head(spec)
         extractor = FlattenExtractor(observation_space)
         return MLP_KINDS[spec["kind"]](
             observation_space,
@@ -117,7 +100,6 @@ def declared_bytes(
         _, n_values = observation_radices(observation_space)
         return int(np.prod(n_values.astype(np.float64))) * outputs * 4
     if spec.get("kind") in MLP_KINDS:
-        _check_one_head(spec)
         sizes = [spaces.flatdim(observation_space), *[int(n) for n in spec["net_arch"]], outputs]
         linear = sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes))
         if spec["kind"] == "conditioned-mlp":  # the weight's features, the layer norms, the member's weights

@@ -2,7 +2,8 @@
 
 Layout (no other module spells these names)::
 
-    run.json           what the run is: its settings (and, from the CLI, the domain and env arguments)
+    run.json           what the run is: its settings (and, from the CLI, the domain and env arguments), with the
+                       format's name and version (:data:`RUN_FORMAT`, :data:`RUN_VERSION`)
     policy_set/        Π in the policy-set format of :class:`~sb3_sfgpi.gpi.GPIPolicy`
     evaluation.json    per iteration: the summary row, the weights trained and, per test weight and agent, the
                        vector returns of GPI (discounted and not) and the last infos
@@ -50,6 +51,10 @@ if TYPE_CHECKING:
 #: The file of a policy-set directory that describes the set and names its other files (see
 #: :mod:`sb3_sfgpi.policy_set_files`).
 MANIFEST = "manifest.json"
+
+#: The format of ``run.json`` and of the files beside it, and its version: a run of another version is refused.
+RUN_FORMAT = "sb3-sfgpi/run"
+RUN_VERSION = 1
 
 #: The columns of ``evaluation.csv``, in order.
 SUMMARY_FIELDS = (
@@ -250,6 +255,12 @@ class RunDirectory:
         config = read_json(path, "run description")
         if not isinstance(config, dict):
             raise ValueError(f"run description {path} is not a JSON object")
+        version = config.pop("version", None)
+        if config.pop("format", None) != RUN_FORMAT or type(version) is not int or version != RUN_VERSION:
+            raise ValueError(
+                f"run description {path} is of format version {version!r}; this version of sb3-sfgpi reads "
+                f"version {RUN_VERSION}"
+            )
         for key in required:
             if key not in config:
                 raise ValueError(f"run description {path} lacks {key!r}")
@@ -260,7 +271,8 @@ class RunDirectory:
         return config
 
     def write_config(self, config: dict[str, Any]) -> None:
-        atomic_write_json(self.path / self.RUN, config)
+        """Write ``run.json``: ``config`` with the format's name and version."""
+        atomic_write_json(self.path / self.RUN, {"format": RUN_FORMAT, "version": RUN_VERSION, **config})
 
     # --- Π ----------------------------------------------------------------------------------------------------
     def save_policy_set(self, policy_set: GPIPolicy) -> None:

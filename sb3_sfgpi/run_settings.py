@@ -38,19 +38,6 @@ SETTINGS = (
     "n_envs",
     "pool_replay",
 )
-#: Settings that runs written before they existed lack, with the value that reproduces those runs.
-SETTING_DEFAULTS = {
-    "validation_weights": 0,
-    "prune": False,
-    "admit_together": False,
-    "sharing": "independent",
-    "n_envs": 1,
-    "ols_batch": "top",
-    "pool_replay": False,
-}
-#: Settings of levers that were measured and removed (docs: experiments/levers), with the value that means "off":
-#: a run stored with another value cannot be continued by this version.
-REMOVED_SETTINGS = {"transfer": False, "gpi_behaviour": False, "replan": False}
 
 
 def acts_by_own_policies(fixed: bool, sharing: str) -> bool:

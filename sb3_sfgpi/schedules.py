@@ -31,8 +31,6 @@ from sb3_sfgpi.run_settings import OLS_BATCHES
 
 #: agent -> the weights it trains for in the next iteration
 AgentWeights = dict[str, np.ndarray]
-#: settings that checkpoints written before they existed lack, with the value those checkpoints were written with
-_SETTINGS_BEFORE_THEY_EXISTED = {"batch": "top"}
 
 
 class WeightSchedule(ABC):
@@ -100,7 +98,7 @@ class WeightSchedule(ABC):
             kind = state.get("kind") if isinstance(state, dict) else state
             raise ValueError(f"the checkpoint holds a {kind!r} schedule, not {self.kind!r}")
         for key, mine in self._settings().items():
-            saved = state.get(key, _SETTINGS_BEFORE_THEY_EXISTED.get(key))
+            saved = state.get(key)
             if not _same_setting(saved, mine):
                 raise ValueError(f"the checkpoint's schedule has {key}={saved}, not {mine}")
         try:

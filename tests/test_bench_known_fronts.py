@@ -1,5 +1,5 @@
 """The known-fronts benchmark's side of morl-baselines: the peers' budgets, the row of a peer that is not installed,
-and the Monte-Carlo EU by which a peer without a model (minecart's GPI-PD) is scored like our runs."""
+and the Monte-Carlo EU by which a peer without a model (minecart's GPI-LS) is scored like our runs."""
 
 from __future__ import annotations
 
@@ -51,16 +51,16 @@ def test_the_rollouts_reset_with_our_test_evaluations_seeds(monkeypatch):
 
 
 def test_the_peers_budgets():
-    gpi_pd, minecart = bench.PEERS[False], bench.PROBLEMS["minecart"]
-    assert gpi_pd.budget(minecart, quick=False, total=None) == (10_000, 6)  # our 3 × 20,000 in its iterations
-    assert gpi_pd.budget(minecart, quick=False, total=bench.GPI_PD_PUBLISHED_STEPS) == (10_000, 15)
-    assert gpi_pd.budget(minecart, quick=True, total=None) == minecart.quick  # the smoke run takes ours
+    gpi_ls, minecart = bench.PEERS[False], bench.PROBLEMS["minecart"]
+    assert gpi_ls.budget(minecart, quick=False, total=None) == (10_000, 15)  # GPI-PD's published 150,000 steps
+    assert gpi_ls.budget(minecart, quick=False, total=60_000) == (10_000, 6)
+    assert gpi_ls.budget(minecart, quick=True, total=None) == minecart.quick  # the smoke run takes ours
     mpmoq, fruit_tree = bench.PEERS[True], bench.PROBLEMS["fruit-tree"]
     assert mpmoq.budget(fruit_tree, quick=False, total=None) == (5_000, 25)
 
 
 def test_a_peer_that_is_not_installed_gets_one_row_saying_so():
-    missing = bench.Peer("no_such_morl_module", "Nothing", "nothing", bench._train_gpi_pd, len)
+    missing = bench.Peer("no_such_morl_module", "Nothing", "nothing", bench._train_gpi_ls, len)
     rows = bench._peer_rows(missing, bench.PROBLEMS["minecart"], [0], quick=True, peer_steps=None)
     assert [row.candidate for row in rows] == [bench.MORL_MISSING]
 

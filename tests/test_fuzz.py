@@ -57,7 +57,7 @@ def damaged_copy(run_dir: Path, tmp_path: Path, file: str, key: str | None, valu
     return copy
 
 
-RUN_KEYS = ["domain", "env_kwargs", "learner_kwargs", "test_weights", "gpi_set", "seed", None]
+RUN_KEYS = ["domain", "env_kwargs", "learner_kwargs", "test_weights", "gpi_set", "seed", "version", None]
 CHECKPOINT_KEYS = ["iteration", "timesteps", "n_policies", "schedule", "next_weights", None]
 
 

@@ -309,7 +309,8 @@ def truncate_policy_file(directory: Path) -> None:
 
 
 def wrong_shapes(directory: Path) -> None:
-    th.save({"table.weight": th.zeros(N_STATES + 1, 6)}, directory / "policy_001.pt")
+    state = th.load(directory / "policy_001.pt", weights_only=True)
+    th.save({**state, "table.shape": th.tensor([N_STATES + 1, 6])}, directory / "policy_001.pt")
 
 
 def sparse_table(directory: Path, **changes) -> None:
@@ -381,7 +382,7 @@ def more_policies_than_memory(directory: Path) -> None:
 
 
 def not_tensors(directory: Path) -> None:
-    th.save({"table.weight": [1.0, 2.0]}, directory / "policy_001.pt")
+    th.save({"table.values": [1.0, 2.0]}, directory / "policy_001.pt")
 
 
 def foreign_manifest(directory: Path) -> None:
@@ -419,7 +420,7 @@ def missing_key(directory: Path) -> None:
         (truncate_manifest, "not valid JSON"),
         (remove_policy_file, "policy_001.pt.* is missing"),
         (truncate_policy_file, "policy_001.pt is unreadable"),
-        (wrong_shapes, "size mismatch"),
+        (wrong_shapes, "the stored table has shape"),
         (not_tensors, "state dict of tensors"),
         (sparse_rows_repeated, "stored table rows repeat"),
         (nan_values, r"non-finite values \(NaN or inf\) in 'table.values'"),
@@ -464,12 +465,12 @@ class CodeRunningPayload:
 def test_a_pickle_that_runs_code_is_not_executed(saved_set, tmp_path):
     # Control: the payload does run code when unpickled the unsafe way.
     control_marker, control_file = tmp_path / "control-marker", tmp_path / "control.pt"
-    th.save({"table.weight": CodeRunningPayload(control_marker)}, control_file)
-    th.load(control_file, weights_only=False)["table.weight"].close()  # the payload returns the opened file
+    th.save({"table.values": CodeRunningPayload(control_marker)}, control_file)
+    th.load(control_file, weights_only=False)["table.values"].close()  # the payload returns the opened file
     assert control_marker.exists()
 
     marker = tmp_path / "marker"
-    th.save({"table.weight": CodeRunningPayload(marker)}, saved_set / "policy_001.pt")
+    th.save({"table.values": CodeRunningPayload(marker)}, saved_set / "policy_001.pt")
     with pytest.raises(CorruptPolicySetError, match="policy_001.pt is unreadable or unsafe"):
         GPIPolicy.load(saved_set)
     assert not marker.exists()
@@ -519,25 +520,6 @@ def test_the_memory_a_manifest_declares_is_what_its_networks_take(spec, observat
     else:
         taken = sum(parameter.numel() * parameter.element_size() for parameter in net.parameters())
     assert declared_bytes(spec, observation_space, spaces.Discrete(4), 3) == taken
-
-
-def test_a_manifest_of_multi_head_networks_is_refused_and_one_of_one_head_loads(tmp_path, make_random_mlp):
-    """Versions with pessimistic SF networks wrote ``n_critics`` in the network spec: ``1`` loads, more is refused."""
-    policy_set = GPIPolicy()
-    policy_set.add(make_random_mlp(0), weights=[1.0, 0.0, 0.0])
-    directory = tmp_path / "set"
-    policy_set.save(directory)
-    manifest = json.loads((directory / MANIFEST).read_text())
-    assert "n_critics" not in manifest["network"]
-    obs = np.zeros((2, 4), dtype=np.float32)
-    manifest["network"]["n_critics"] = 1
-    (directory / MANIFEST).write_text(json.dumps(manifest))
-    np.testing.assert_array_equal(GPIPolicy.load(directory).successor_features(obs), policy_set.successor_features(obs))
-    manifest["network"]["n_critics"] = 2
-    (directory / MANIFEST).write_text(json.dumps(manifest))
-    with pytest.raises(CorruptPolicySetError, match=r"multi-head \(pessimistic\) SF networks were removed") as error:
-        GPIPolicy.load(directory)
-    assert "\n" not in str(error.value)
 
 
 def test_retired_policies_are_saved_and_left_out_of_a_plain_load(saved_set):

@@ -17,7 +17,7 @@ from sb3_sfgpi.callbacks import ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.masfols import MASFOLS, REMOVED_SETTINGS, SETTING_DEFAULTS, SETTINGS
+from sb3_sfgpi.masfols import MASFOLS, SETTINGS
 
 #: The chain's tabular learner settings, without the policy (MASFOLS takes it apart).
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
@@ -97,7 +97,6 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     assert (config["value_mode"], config["value_episodes"]) == ("joint", 1)
     assert (config["gpi_set"], config["eval_episodes"]) == ("all", 1)
     assert (config["validation_weights"], config["prune"], config["admit_together"]) == (0, False, False)
-    assert not set(REMOVED_SETTINGS) & set(config)  # the removed levers are not written
     checkpoint = json.loads((tmp_path / "checkpoint.json").read_text())
     assert (checkpoint["iteration"], checkpoint["timesteps"]) == (2, 100)
     assert checkpoint["n_policies"] == len(model.policy_set)
@@ -134,35 +133,16 @@ def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):
     assert json.loads((tmp_path / "cut" / "checkpoint.json").read_text())["iteration"] == len(whole.history)
 
 
-@pytest.mark.parametrize(
-    ("setting", "kwargs"),
-    [
-        ("validation_weights", {}),
-        ("admit_together", {"admission": {"validation_weights": 2, "together": True}}),
-    ],
-)
-def test_a_run_written_before_a_setting_existed_continues_without_it(tmp_path, setting, kwargs):
-    make(steps=50, weights="random", run_dir=tmp_path, **kwargs).learn(max_iterations=1)
-    config = json.loads((tmp_path / "run.json").read_text())
-    del config[setting]
-    (tmp_path / "run.json").write_text(json.dumps(config))
-    continued = MASFOLS.load(tmp_path, ParallelChainEnv(2))
-    assert continued.settings[setting] == SETTING_DEFAULTS[setting]
-    admission = continued.callback.admission
-    stored_weights = kwargs.get("admission", {}).get("validation_weights", 0)
-    assert (admission.validation_weights, admission.together) == (stored_weights, False)
-    assert len(continued.learn(max_iterations=2).history) == 2
-
-
-@pytest.mark.parametrize("lever", sorted(REMOVED_SETTINGS))
-def test_load_refuses_a_run_of_a_removed_lever_and_continues_one_with_it_off(tmp_path, lever):
+@pytest.mark.parametrize("version", [None, 0, 2, "1"])
+def test_load_refuses_a_run_file_of_another_format_version(tmp_path, version):
     make(steps=50, weights="random", run_dir=tmp_path).learn(max_iterations=1)
     config = json.loads((tmp_path / "run.json").read_text())
-    (tmp_path / "run.json").write_text(json.dumps({**config, lever: True}))  # written by an older version
-    with pytest.raises(ValueError, match=f"was trained with \\['{lever}'\\], levers this version removed"):
+    assert (config["format"], config["version"]) == ("sb3-sfgpi/run", 1)
+    (tmp_path / "run.json").write_text(json.dumps({**config, "version": version}))
+    with pytest.raises(
+        ValueError, match=f"is of format version {version!r}; this version of sb3-sfgpi reads version 1"
+    ):
         MASFOLS.load(tmp_path, ParallelChainEnv(2))
-    (tmp_path / "run.json").write_text(json.dumps({**config, lever: False}))  # off: the run is one of today's
-    assert len(MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=2).history) == 2
 
 
 def test_load_refuses_arguments_that_are_stored_in_the_run(tmp_path):
@@ -206,7 +186,7 @@ def test_a_bad_weights_string_is_refused(weights):
 def test_load_refuses_a_directory_that_is_not_a_run(tmp_path):
     with pytest.raises(ValueError, match="not a run directory"):
         MASFOLS.load(tmp_path, ParallelChainEnv(2))
-    (tmp_path / "run.json").write_text(json.dumps({"domain": "chain", "seed": 0}))
+    (tmp_path / "run.json").write_text(json.dumps({"format": "sb3-sfgpi/run", "version": 1, "domain": "chain"}))
     with pytest.raises(ValueError, match="lacks the settings"):
         MASFOLS.load(tmp_path, ParallelChainEnv(2))
 

@@ -85,7 +85,9 @@ def test_layout(tmp_path):
     assert not run_dir.path.exists()  # nothing is created before something is written
 
     run_dir.write_config({"seed": 1})
-    assert run_dir.is_run() and json.loads((tmp_path / "run" / "run.json").read_text()) == {"seed": 1}
+    written = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert run_dir.is_run() and written == {"format": "sb3-sfgpi/run", "version": 1, "seed": 1}
+    assert run_dir.read_config() == {"seed": 1}
     run_dir.write_iteration([row(1)], checkpoint(1))
     assert run_dir.has_checkpoint() and run_dir.has_evaluations()
     names = {p.name for p in run_dir.path.iterdir()}

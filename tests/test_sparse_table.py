@@ -7,7 +7,6 @@ import copy
 
 import numpy as np
 import pytest
-import torch as th
 from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -118,17 +117,3 @@ def test_a_policy_set_copies_and_saves_the_stored_rows_only(tmp_path):
         expected = policy.q_values(observations, np.asarray(w) / np.sum(w))[0]
         np.testing.assert_array_equal(loaded.q_values(observations, w), expected)
     assert loaded.networks[0].table._slot is None  # GPI's stack read the stored rows: no slot map per copy
-
-
-def test_a_policy_file_of_a_dense_table_written_before_loads_as_its_stored_rows(tmp_path, make_random_tabular):
-    net = make_random_tabular(0)
-    table = net.table.dense()
-    table[::3] = 0.0  # rows never learned
-    net.table.set_dense(table)
-    policy_set = GPIPolicy()
-    policy_set.add(net, weights=[1.0, 1.0, 1.0])
-    policy_set.save(tmp_path / "set")
-    th.save({"table.weight": th.from_numpy(table)}, tmp_path / "set" / "policy_000.pt")  # the format of before
-    loaded = GPIPolicy.load(tmp_path / "set").networks[0].table
-    np.testing.assert_array_equal(loaded.dense(), table)
-    assert len(loaded) == int(table.any(axis=1).sum())

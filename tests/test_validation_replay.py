@@ -78,6 +78,7 @@ def test_the_replay_takes_the_domains_rules_by_default(example, runs):
 def test_a_run_that_pooled_its_replay_is_refused(example, tmp_path):
     settings = {"domain": "resource-gathering-v0", "algorithm": "ma-sfols", "seed": 0, "test_weights": [[1, 0, 0]]}
     settings.update(env_kwargs={}, learner_kwargs={}, eval_episodes=1, validation_weights=0, pool_replay=True)
+    settings.update(format="sb3-sfgpi/run", version=1, prune=False, value_mode="joint")
     (tmp_path / "run.json").write_text(json.dumps(settings))
     options = argparse.Namespace(run_dir=str(tmp_path), validation_weights=None, admit_together=None, prune=None)
     with pytest.raises(ValueError, match="pooled its replay: the SFs saved are its last iteration's"):
@@ -115,15 +116,8 @@ def test_the_replay_admits_a_policy_that_ties_one_by_one(example):
         ("validated", {}, [], "replay needs --set validation_weights=0"),
         ("kept", {}, ["--validation-weights", "0"], "validation needs validation weights"),
         ("kept", {"algorithm": "fixed"}, [], "is a run of fixed weights"),
-        ("kept", {"gpi_behaviour": True}, [], "trained with gpi_behaviour, levers this version removed"),
-        ("kept", {"transfer": True, "replan": True}, [], "trained with transfer, replan, levers this version removed"),
-        ("kept", {"value_mode": "gpi"}, [], "trained with value_mode=gpi, levers this version removed"),
-        (
-            "kept",
-            {"transfer": False, "gpi_behaviour": False, "replan": False, "env_kwargs": {"size": 3}},
-            [],
-            "the four-room env refuses",
-        ),  # fmt: skip
+        ("kept", {"value_mode": "gpi"}, [], "trained with value_mode=gpi, which this version does not have"),
+        ("kept", {"version": 2}, [], "is of format version 2; this version of sb3-sfgpi reads version 1"),
         ("kept", {"env_kwargs": {"size": 3}}, [], "the four-room env refuses"),
         ("kept", {"test_weights": [[0.5, 0.5]]}, [], "test weights of shape (1, 2) for policies of 3 objectives"),
         ("nowhere", None, [], "is not a run directory"),

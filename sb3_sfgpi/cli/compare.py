@@ -26,7 +26,7 @@ from sb3_sfgpi.cli.values import check_weights
 from sb3_sfgpi.common.serialization import atomic_write_json
 from sb3_sfgpi.common.weights import format_weights, same_weight
 from sb3_sfgpi.run_directory import RunDirectory
-from sb3_sfgpi.run_settings import SETTING_DEFAULTS, acts_by_own_policies
+from sb3_sfgpi.run_settings import acts_by_own_policies
 
 if TYPE_CHECKING:
     from sb3_sfgpi.common.rollouts import EpisodeReturns
@@ -154,7 +154,7 @@ def _planned(
     for fixed, fixed_config in fixed_runs:
         w = fixed_config["weights"]
         header = {"method": "fixed", "label": f"scalarized w={format_weights(w)}", "run_dir": str(fixed)}
-        own = acts_by_own_policies(fixed=True, sharing=fixed_config.get("sharing", SETTING_DEFAULTS["sharing"]))
+        own = acts_by_own_policies(fixed=True, sharing=fixed_config.get("sharing"))
         planned.append((header, job(w, fixed, own_policies=own)))
     if not args.no_baselines:
         for name, overrides in preset.baselines.items():

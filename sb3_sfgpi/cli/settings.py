@@ -77,16 +77,15 @@ def method_settings(preset: DomainPreset, items: Sequence[str], algo: str) -> tu
     return settings, given
 
 
-def check_resumed(given: dict[str, Any], stored: dict[str, Any], defaults: dict[str, Any]) -> None:
+def check_resumed(given: dict[str, Any], stored: dict[str, Any]) -> None:
     """
     Refuse ``--set`` values that would change a resumed run.
 
     :param given: the settings given with ``--set``
     :param stored: the run's ``run.json``
-    :param defaults: what runs written before a setting existed mean by its absence
     :raises UsageError: a setting that differs from the stored one
     """
     for key, value in given.items():
-        before = stored.get(key, defaults.get(key))
+        before = stored.get(key)
         if key not in MACHINE_SETTINGS and value != before:
             raise UsageError(f"--resume: --set {key}={value} would change the run's {key} ({before})")

@@ -18,7 +18,6 @@ from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_
 from sb3_sfgpi.cli.settings import SETTABLE, check_resumed, method_settings
 from sb3_sfgpi.cli.values import check_weights, key_values
 from sb3_sfgpi.run_directory import RunDirectory
-from sb3_sfgpi.run_settings import SETTING_DEFAULTS
 
 if TYPE_CHECKING:
     from sb3_sfgpi.masfols import MASFOLS
@@ -212,7 +211,7 @@ def _resumed_config(
             f"--resume: --steps-per-iteration {config['steps_per_iteration']} would change the run's "
             f"steps_per_iteration ({saved.get('steps_per_iteration')})"
         )
-    check_resumed(given, saved, SETTING_DEFAULTS)
+    check_resumed(given, saved)
     for key in ("domain", "algorithm", "seed", "weights"):
         if saved.get(key) != config.get(key):
             raise UsageError(f"--resume: {run_dir} is a run with {key}={saved.get(key)!r}, not {config.get(key)!r}")

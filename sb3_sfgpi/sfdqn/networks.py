@@ -22,8 +22,8 @@ from sb3_sfgpi.sfdqn.sparse import SparseTable
 
 #: Largest table :class:`TabularSFNetwork` builds (number of observation values).
 MAX_TABLE_STATES = 50_000_000
-#: What a table's state dict may hold (``table.weight``: the dense table of older versions).
-TABLE_KEYS = ("table.rows", "table.values", "table.shape", "table.default", "table.weight")
+#: What a table's state dict may hold.
+TABLE_KEYS = ("table.rows", "table.values", "table.shape", "table.default")
 
 
 def scalarize(psi: th.Tensor, weights: th.Tensor) -> th.Tensor:
@@ -188,7 +188,7 @@ class TabularSFNetwork(BasePolicy):
     The row of an observation is its mixed-radix index; ``TabularPolicy.td_update`` updates the sampled rows
     in place. The table lives in numpy on the CPU and has no torch parameters; its state dict holds
     ``table.rows`` (the stored rows), ``table.values``, ``table.shape`` (of the whole table) and, where it is not
-    zero, ``table.default``; a dense ``table.weight`` (older versions) loads too.
+    zero, ``table.default``.
 
     :param observation_space: a small integer observation space (see :func:`observation_radices`)
     :param action_space: Action space (Discrete)
@@ -296,20 +296,12 @@ class TabularSFNetwork(BasePolicy):
 def _table_arrays(state: dict[str, th.Tensor], shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     The stored rows, their values and the default row of a table's state dict (keys without prefix), checked against
-    the table's ``shape``; a dense ``table.weight`` gives its non-zero rows.
+    the table's ``shape``.
 
     :raises KeyError: a key it needs is missing
     :raises ValueError: shapes, types or rows that do not fit the table
     """
     state = {key: value.detach().cpu() for key, value in state.items()}  # SB3 loads onto its device: tables are numpy
-    if "table.weight" in state:
-        dense = state["table.weight"]
-        if tuple(dense.shape) != shape:
-            raise ValueError(
-                f"size mismatch: the stored table has shape {tuple(dense.shape)}, the network's is {shape}"
-            )
-        rows = dense.any(dim=1).nonzero().flatten()
-        return rows.numpy(), dense[rows].numpy(), np.zeros(shape[1], dtype=np.float32)
     rows, values, stored_shape = state["table.rows"], state["table.values"], state["table.shape"]
     default = state.get("table.default", th.zeros(shape[1]))
     if tuple(stored_shape.tolist()) != shape:
