@@ -302,18 +302,17 @@ def test_load_state_dict_refuses_a_fixed_schedule_with_other_weights():
     np.testing.assert_allclose(same.weights, [0.3, 0.7])
 
 
-def test_load_state_dict_refuses_another_batch_and_reads_old_checkpoints_as_top():
+def test_load_state_dict_refuses_another_batch_or_none():
     saved = OLSSchedule("same-after-extrema")
     saved.start(3)
     top = OLSSchedule("top")
     top.start(3)
     with pytest.raises(ValueError, match="batch=same-after-extrema, not top"):
         top.load_state_dict(saved.state_dict())
-    old = top.state_dict()
-    del old["batch"]  # written before the setting existed: Algorithm 1's top priorities
-    top.load_state_dict(old)
-    with pytest.raises(ValueError, match="batch=top, not same-after-extrema"):
-        saved.load_state_dict(old)
+    without = top.state_dict()
+    del without["batch"]
+    with pytest.raises(ValueError, match="batch=None, not top"):
+        top.load_state_dict(without)
 
 
 @pytest.mark.parametrize("state", [None, [], "ols", {"ols": {}}])
