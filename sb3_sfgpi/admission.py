@@ -124,7 +124,7 @@ class Admission:
                 policy_set.pop()
             self._cached = kept
             policies = "policy" if len(group) == 1 else "policies together"
-            self._say(f"{' and '.join(c.agent for c in group)}'s {policies} left out of Π: GPI on the validation "
+            self._print(f"{' and '.join(c.agent for c in group)}'s {policies} left out of Π: GPI on the validation "
                       f"weights {after:.4f} with, {before:.4f} without")  # fmt: skip
             return False
         for c in group:
@@ -146,7 +146,7 @@ class Admission:
             if scores[worst] <= current.score:
                 break
             info = policy_set.infos[worst]
-            self._say(f"{info.agent}'s policy of iteration {info.iteration} retired from Π: GPI on the validation "
+            self._print(f"{info.agent}'s policy of iteration {info.iteration} retired from Π: GPI on the validation "
                       f"weights {scores[worst]:.4f} without it, {self._current(policy_set):.4f} with")  # fmt: skip
             members = [i for i, member in enumerate(record.infos) if member.retired is None]
             record.retire(members[worst], iteration)
@@ -169,6 +169,6 @@ class Admission:
             raise RuntimeError("Admission.start(scorer) must be called before policies are validated")
         return self._scorer
 
-    def _say(self, message: str) -> None:
+    def _print(self, message: str) -> None:
         if self.verbose:
             print(message)

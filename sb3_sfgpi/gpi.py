@@ -48,7 +48,7 @@ from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, wr
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
-from sb3_sfgpi.stacking import Stacked, WithoutOne, numpy_tables, stack_networks
+from sb3_sfgpi.stacking import LeaveOneOut, Stacked, numpy_tables, stack_networks
 
 __all__ = ["MANIFEST", "CorruptPolicySetError", "Decisions", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
 
@@ -226,7 +226,7 @@ class GPIPolicy:
         view = GPIPolicy(device=self.device)
         view.networks = [net for i, net in enumerate(self.networks) if i != member]
         view.infos = [info for i, info in enumerate(self.infos) if i != member]
-        view._device, view._stacked = self.device, WithoutOne(self._stack(), member)
+        view._device, view._stacked = self.device, LeaveOneOut(self._stack(), member)
         return view
 
     def members(self) -> GPIPolicy:

@@ -396,7 +396,7 @@ class MultiAgentRunner:
         observations move on to theirs.
         """
         learner = self.learners[name]
-        # np.array of a list of equal arrays is np.stack of them, in a third of the time (one or two agents a step).
+        # np.array of a list of equal arrays is np.stack of them, faster for the few agents of a step.
         next_obs = np.array([step.obs[agent] for agent in step.agents])
         rewards = np.array([step.rewards[agent] for agent in step.agents], dtype=np.float32)
         dones = np.array([step.terminations[agent] or step.truncations[agent] for agent in step.agents])

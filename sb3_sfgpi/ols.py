@@ -99,7 +99,7 @@ def _deduplicate(points: np.ndarray, tolerance: float) -> list[np.ndarray]:
     The points, in order, without those within ``tolerance`` (max-norm) of a point kept before them.
 
     Qhull reports a vertex once per facet it closes, so a corner comes many times; a k-d tree finds each
-    point's near neighbours at once instead of comparing it with every kept point (which was quadratic).
+    point's near neighbours at once instead of comparing it with every kept point.
     """
     neighbours = cKDTree(points).query_ball_point(points, r=tolerance, p=np.inf)
     kept = np.zeros(len(points), dtype=bool)

@@ -30,9 +30,9 @@ class StackedTables:
     ``k``-th state that some policy has stored, and one last row holds every policy's default row, which serves every
     other state.
 
-    Tables of large observation spaces are mostly never visited (the Four-Room with object flags: under 1% of the
-    rows), so the stack holds the stored rows only. ``ψ`` of a batch is one gather of its rows (``P·A·d`` contiguous
-    floats per observation).
+    Tables of large observation spaces are mostly never visited (the Four-Room with object flags visits a small
+    fraction of its rows), so the stack holds the stored rows only. ``ψ`` of a batch is one gather of its rows
+    (``P·A·d`` contiguous floats per observation).
     """
 
     def __init__(self, networks: list[TabularSFNetwork]):
@@ -132,7 +132,7 @@ class StackedVmap:
         return th.vmap(one, in_dims=(0, 0, None))(self.params, self.buffers, obs_tensor)
 
 
-class WithoutOne:
+class LeaveOneOut:
     """
     A stacked set without one of its policies: the others' ``ψ`` (or action values) from the whole set's stack, in
     their order, nothing copied. Each policy's values are those of the whole set's pass.
@@ -155,12 +155,12 @@ class WithoutOne:
 
 
 #: A set's networks evaluated in one batched pass.
-Stacked = StackedTables | StackedMLP | StackedVmap | WithoutOne
+Stacked = StackedTables | StackedMLP | StackedVmap | LeaveOneOut
 
 
-def numpy_tables(stacked: Stacked) -> TypeGuard[StackedTables | WithoutOne]:
+def numpy_tables(stacked: Stacked) -> TypeGuard[StackedTables | LeaveOneOut]:
     """Whether the stack holds tables, whose action values numpy computes (on the CPU)."""
-    return isinstance(stacked, StackedTables) or (isinstance(stacked, WithoutOne) and stacked.tabular)
+    return isinstance(stacked, StackedTables) or (isinstance(stacked, LeaveOneOut) and stacked.tabular)
 
 
 def stack_networks(networks: list[nn.Module]) -> StackedTables | StackedMLP | StackedVmap:

@@ -125,19 +125,21 @@ class DomainPreset:
         except (TypeError, ValueError, FileNotFoundError) as error:
             raise UsageError(f"the {self.name} env refuses {env_kwargs}: {error}") from error
 
-    def run_file_env(self, env_kwargs: dict[str, Any], source: Any, vouched: dict[str, Any] | None = None) -> dict:
+    def run_file_env(self, env_kwargs: dict[str, Any], source: Any, given_here: dict[str, Any] | None = None) -> dict:
         """
         The env arguments of a run file, every one on the domain's allow-list (``run_file_env_kwargs``) or
-        ``vouched`` for (given on this command line with the same value).
+        ``given_here`` for (given on this command line with the same value).
 
         :param source: the run directory, named in the error
         :raises UsageError: an argument the domain does not take from a run file
         """
         allowed = self.env_kwargs.keys() if self.run_file_env_kwargs is None else self.run_file_env_kwargs
-        vouched = vouched or {}
-        unvouched = {key: value for key, value in env_kwargs.items() if key not in vouched or vouched[key] != value}
+        given_here = given_here or {}
+        from_run_file = {
+            key: value for key, value in env_kwargs.items() if key not in given_here or given_here[key] != value
+        }
         try:
-            refuse_unlisted(unvouched, allowed, f"{source}/run.json: env argument", f"the {self.name} env")
+            refuse_unlisted(from_run_file, allowed, f"{source}/run.json: env argument", f"the {self.name} env")
         except ValueError as error:
             raise UsageError(str(error)) from None
         return env_kwargs

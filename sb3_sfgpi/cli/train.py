@@ -79,9 +79,9 @@ def run(args: argparse.Namespace) -> int:
     config, given = _run_config(args, preset)
     run_dir = RunDirectory(args.out or Path("runs") / _default_name(args, config))
     if args.resume:
-        vouched = config["env_kwargs"]  # the preset's and --env's: not from the run file
+        given_here = config["env_kwargs"]  # the preset's and --env's: not from the run file
         config = _resumed_config(args, run_dir, config, given)
-        preset.run_file_env(config["env_kwargs"], run_dir, vouched)
+        preset.run_file_env(config["env_kwargs"], run_dir, given_here)
     elif run_dir.has_checkpoint():
         raise UsageError(f"{run_dir} already holds a run: pass --resume to continue it or choose another --out")
 
@@ -304,8 +304,8 @@ def _print_result(run_dir: RunDirectory, model: MASFOLS) -> None:
 def _ols_end(ccs_size: int, reward_dim: int) -> str:
     """
     Why OLS ended, for the result line. One learned value that dominates all the others is OLS's end (one policy
-    optimal for every weight), but it is also what learners that learned too little give (on minecart, three policies
-    that bring no ore home: their values differ in fuel only), so the line says what to check.
+    optimal for every weight), but it is also what learners that learned too little give (policies that reach no
+    reward but differ in a cost only), so the line says what to check.
     """
     if ccs_size == 1 and reward_dim > 1:
         return (

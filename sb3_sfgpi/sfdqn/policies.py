@@ -410,7 +410,7 @@ class TabularPolicy(SFDQNPolicy):
         target of :meth:`SFDQNPolicy.td_update`.
 
         This is the SGD step on ``0.5 · Σ ||target − ψ(s, a)||²`` with learning rate ``α``, done in place in
-        numpy on the table's memory (autograd through a table costs a hundred times more). ``α`` is the
+        numpy on the table's memory (autograd through a table would cost far more than the update). ``α`` is the
         optimizer's current learning rate, so SB3's learning-rate schedules apply. ``max_grad_norm`` is unused:
         the tabular update is exact.
 

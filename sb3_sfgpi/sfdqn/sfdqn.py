@@ -35,7 +35,7 @@ from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
 
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 
-#: Most sweeps :meth:`SFDQN.settle` does (γ = 0.99 reaches the tolerance in about 2,000).
+#: Most sweeps :meth:`SFDQN.settle` does (far more than planning needs to reach its tolerance at γ = 0.99).
 SETTLE_SWEEPS = 10_000
 
 

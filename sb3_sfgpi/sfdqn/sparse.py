@@ -1,8 +1,8 @@
 """A table of successor features that holds the rows it has stored; every other row reads one default row.
 
-Tables of large observation spaces are mostly never visited (the Four-Room with object flags: under 1% of its
-692,224 rows), so :class:`SparseTable` keeps a growable array of the stored rows and a dense ``int32`` map from a
-row to its slot in that array (``-1``: not stored). The array's last row is the default row, so a lookup is one
+Tables of large observation spaces are mostly never visited (the Four-Room with object flags visits a small
+fraction of its rows), so :class:`SparseTable` keeps a growable array of the stored rows and a dense ``int32`` map
+from a row to its slot in that array (``-1``: not stored). The array's last row is the default row, so a lookup is one
 fancy index with no special case: slot ``-1`` reads the last row. A row reads exactly what a dense table holding
 the default everywhere and the stored rows at their places would read.
 """
