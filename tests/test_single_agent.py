@@ -112,6 +112,23 @@ def test_the_command_line_trains_an_mo_gymnasium_id(tmp_path, capsys):
     assert sorted(p.name for p in (out / "experience").iterdir()) == ["iteration_001.npz", "iteration_002.npz"]
 
 
+def test_the_command_line_trains_a_deep_id_with_one_conditioned_learner_and_resumes_it(tmp_path, capsys):
+    """Minecart (continuous observations): the deep preset's one ψ(s, a, w) for the run, its state kept for resume."""
+    out = tmp_path / "minecart"
+    short = ["--steps-per-iteration", "150", "--set", "n_test_weights=1", "--set", "value_episodes=1"]
+    assert main(["train", "minecart-v0", "--iterations", "1", *short, "--out", str(out), "--no-progress"]) == 0
+    config = json.loads((out / "run.json").read_text())
+    assert config["policy"] == "ConditionedMlpPolicy" and config["learner_kwargs"]["exploration_steps"] == 50_000
+    assert config["validation_weights"] == 0 and config["learner_kwargs"]["buffer_size"] == 200_000  # not cut
+    assert [p.name for p in (out / "learners").iterdir()] == ["iteration_001.pt"]
+    resumed = ["train", "minecart-v0", "--iterations", "2", *short, "--out", str(out), "--resume", "--no-progress"]
+    assert main(resumed) == 0
+    assert [p.name for p in (out / "learners").iterdir()] == ["iteration_002.pt"]
+    assert len(json.loads((out / "evaluation.json").read_text())) == 2
+    assert GPIPolicy.load(out / "policy_set").networks[0].member_weights.shape == (3,)
+    capsys.readouterr()
+
+
 @pytest.mark.parametrize(
     "domain, message", [("no-such-env-v0", "unknown domain 'no-such-env-v0'"), ("CartPole-v1", "reward_space")]
 )
