@@ -227,8 +227,41 @@ def run(quick: bool = False) -> list[Row]:
 
 
 def run_mlp(quick: bool = False) -> list[Row]:
-    """MLP SFDQN vs SB3's DQN, and the candidate one-pass TD update vs the current one."""
-    return [_mlp_against_dqn_row(quick), *_td_update_rows(quick)]
+    """MLP SFDQN vs SB3's DQN, the candidate one-pass TD update vs the current one, the conditioned TD update."""
+    return [_mlp_against_dqn_row(quick), *_td_update_rows(quick), _conditioned_update_row(quick)]
+
+
+def _conditioned_update_row(quick: bool) -> Row:
+    """
+    ``ConditionedMlpPolicy``'s TD update (the deep preset's: 4 × 256, batch 128 learned for w and for support
+    weights) with its default optimizer (Adam, ``foreach``) against Adam's loop over the parameters.
+    """
+    import mo_gymnasium as mo
+
+    kwargs = dict(learning_starts=100, batch_size=128, buffer_size=2_000, seed=0)
+    models = {}
+    for name, optimizer_kwargs in (("foreach", {}), ("loop", {"foreach": False})):
+        model = _silent(SFDQN("ConditionedMlpPolicy", mo.make("minecart-v0"), **kwargs,
+                              policy_kwargs={"optimizer_kwargs": optimizer_kwargs}))  # fmt: skip
+        model.set_weight_support(np.eye(3))
+        model.learn(300)
+        models[name] = model
+    samples = interleaved_samples(
+        {name: lambda m=m: m.policy.td_update(m.replay_buffer, 128, 0.98, 10.0) for name, m in models.items()},
+        repeats=5 if quick else 11,
+        number=10 if quick else 40,
+    )
+    ratio, q1, q3 = paired_ratio(samples, "loop", "foreach")
+    return Row(
+        "training",
+        "ConditionedMlpPolicy TD update (4 × 256, 2 × 128 rows), Adam foreach vs its loop over the parameters",
+        fmt_time(float(np.median(samples["foreach"]))),
+        fmt_time(float(np.median(samples["loop"]))),
+        ratio,
+        "",
+        None,
+        f"the policy's default (foreach) against the loop; per-round quartiles {q1:.2f}–{q3:.2f}",
+    )
 
 
 def _mlp_against_dqn_row(quick: bool) -> Row:

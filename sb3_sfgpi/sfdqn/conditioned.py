@@ -142,14 +142,24 @@ class ConditionedPolicy(SFDQNPolicy):
     :param lr_schedule: Learning rate schedule
     :param reward_dim: Number of objectives ``d``
     :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
+    :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate (default: ``foreach``)
     :param kwargs: further :class:`~sb3_sfgpi.sfdqn.policies.SFDQNPolicy` arguments
     """
 
     sf_net: ConditionedSFNetwork
     sf_net_target: ConditionedSFNetwork
 
-    def __init__(self, *args: Any, net_arch: list[int] | None = None, **kwargs: Any):
-        super().__init__(*args, net_arch=list(CONDITIONED_NET_ARCH if net_arch is None else net_arch), **kwargs)
+    def __init__(
+        self,
+        *args: Any,
+        net_arch: list[int] | None = None,
+        optimizer_kwargs: dict[str, Any] | None = None,
+        **kwargs: Any,
+    ):
+        # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them
+        optimizer_kwargs = {"foreach": True, **(optimizer_kwargs or {})}
+        net_arch = list(CONDITIONED_NET_ARCH if net_arch is None else net_arch)
+        super().__init__(*args, net_arch=net_arch, optimizer_kwargs=optimizer_kwargs, **kwargs)
         #: the weights trained beside ``weights`` and acted over by GPI, shape ``(k, d)`` (set by SFDQN)
         self.support = self.weights.reshape(1, -1).clone()
 
