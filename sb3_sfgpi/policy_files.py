@@ -129,8 +129,8 @@ def read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
         raise CorruptPolicySetError(f"policy file {path} is unreadable or unsafe: {error}") from error
     if not isinstance(state, dict) or not all(isinstance(v, th.Tensor) for v in state.values()):
         raise CorruptPolicySetError(f"policy file {path} does not hold a state dict of tensors")
-    for key, value in state.items():
-        if value.is_floating_point() and not bool(th.isfinite(value).all()):
+    for key, value in state.items():  # finite in float32, as the networks and tables hold them (1e39 is inf there)
+        if value.is_floating_point() and not bool(th.isfinite(value.to(th.float32)).all()):
             raise CorruptPolicySetError(f"policy file {path} holds non-finite values (NaN or inf) in {key!r}")
     return state
 

@@ -146,13 +146,31 @@ def _read_manifest(directory: Path) -> dict[str, Any]:
 
 
 def _checked_entry(entry: dict[str, Any]) -> int | None:
-    """Check a policy's entry; return the iteration after which it was retired (None: in Π)."""
-    if entry.get("value") is not None and not np.isfinite(np.asarray(entry["value"], dtype=float)).all():
-        raise ValueError(f"the value of {entry['file']!r} is not finite")
+    """Check a policy's entry, every field's type; return the iteration after which it was retired (None: in Π)."""
+    if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+        raise ValueError(f"a policy entry must be an object with a 'file' name, got {entry!r}")
+    for key in ("weights", "value"):
+        numbers = entry.get(key)
+        if (key == "weights" or numbers is not None) and not _finite_numbers(numbers):
+            raise ValueError(f"the {key} of {entry['file']!r} must be a list of finite numbers, got {numbers!r}")
+    iteration, agent = entry.get("iteration"), entry.get("agent")
+    if iteration is not None and (type(iteration) is not int or iteration < 0):
+        raise ValueError(f"'iteration' of {entry['file']!r} must be null or a non-negative integer, got {iteration!r}")
+    if agent is not None and not isinstance(agent, str):
+        raise ValueError(f"'agent' of {entry['file']!r} must be null or a name, got {agent!r}")
     left = entry.get("retired")
     if left is not None and (isinstance(left, bool) or not isinstance(left, int) or left < 1):
         raise ValueError(f"'retired' of {entry['file']!r} must be null or an iteration, got {left!r}")
     return left
+
+
+def _finite_numbers(value: Any) -> bool:
+    """Whether ``value`` is a JSON list of finite numbers (not bools, not strings)."""
+    return (
+        isinstance(value, list)
+        and all(type(x) in (int, float) for x in value)
+        and bool(np.isfinite(np.asarray(value, dtype=np.float64)).all())
+    )
 
 
 def _check_bound(net: nn.Module, entry: dict[str, Any]) -> None:

@@ -407,6 +407,26 @@ def retired_not_an_iteration(directory: Path) -> None:
     (directory / MANIFEST).write_text(json.dumps(manifest))
 
 
+def beyond_float32(directory: Path) -> None:
+    """Values stored as float64 that are finite there and infinite in the float32 the table holds."""
+    state = th.load(directory / "policy_001.pt", weights_only=True)
+    values = state["table.values"].to(th.float64)
+    values[0, 0] = 1e39
+    th.save({**state, "table.values": values}, directory / "policy_001.pt")
+
+
+def huge_action_space(directory: Path) -> None:
+    manifest = json.loads((directory / MANIFEST).read_text())
+    manifest["action_space"]["n"] = 10**30
+    (directory / MANIFEST).write_text(json.dumps(manifest))
+
+
+def iteration_not_an_integer(directory: Path) -> None:
+    manifest = json.loads((directory / MANIFEST).read_text())
+    manifest["policies"][1]["iteration"] = "1"
+    (directory / MANIFEST).write_text(json.dumps(manifest))
+
+
 def missing_key(directory: Path) -> None:
     manifest = json.loads((directory / MANIFEST).read_text())
     del manifest["observation_space"]
@@ -425,7 +445,7 @@ def missing_key(directory: Path) -> None:
         (sparse_rows_repeated, "stored table rows repeat"),
         (nan_values, r"non-finite values \(NaN or inf\) in 'table.values'"),
         (infinite_values, r"non-finite values \(NaN or inf\) in 'table.values'"),
-        (non_finite_value_vector, "the value of 'policy_001.pt' is not finite"),
+        (non_finite_value_vector, "the value of 'policy_001.pt' must be a list of finite numbers"),
         (file_listed_twice, "lists a policy file more than once"),
         (link_leaving_the_directory, "policy_001.pt is a link that leaves the directory"),
         (more_policies_than_memory, r"policies of 960.0 MB each .* more than half of this machine's memory"),
@@ -438,6 +458,9 @@ def missing_key(directory: Path) -> None:
         (escaping_file_name, r"\.\./outside\.pt.* is missing"),
         (missing_key, "observation_space"),
         (retired_not_an_iteration, "'retired' of 'policy_001.pt' must be null or an iteration, got True"),
+        (beyond_float32, r"non-finite values \(NaN or inf\) in 'table.values'"),
+        (huge_action_space, r"n must hold integers in \[1, 2147483647\]"),
+        (iteration_not_an_integer, "'iteration' of 'policy_001.pt' must be null or a non-negative integer, got '1'"),
     ],
 )
 def test_corrupt_directories_fail_clearly(saved_set, corrupt, message):

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from parallel_chain import make_chain_runner
+from parallel_chain import ParallelChainEnv, make_chain_runner
 
+from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.callbacks import OLSCallback
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
@@ -37,3 +38,19 @@ def test_agent_view_cannot_be_stepped_alone():
 def test_learn_without_a_callback_is_refused():
     with pytest.raises(ValueError, match="runner-level callback"):
         make_chain_runner().learn(10)
+
+
+class ThreeRewardsForTwo(ParallelChainEnv):
+    """A chain whose rewards have three components while its reward space declares two."""
+
+    def step(self, actions):
+        obs, rewards, *rest = super().step(actions)
+        return (obs, {agent: np.append(r, 0.0) for agent, r in rewards.items()}, *rest)
+
+
+def test_a_reward_of_another_shape_than_the_reward_space_is_refused_naming_both():
+    model = MASFOLS(ThreeRewardsForTwo(2), policy="TabularPolicy", steps_per_iteration=10, seed=0)
+    with pytest.raises(
+        ValueError, match=r"agent 'agent_0', step 1: the reward has shape \(3,\), its reward_space \(2,\)"
+    ):
+        model.learn(max_iterations=1)

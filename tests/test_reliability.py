@@ -56,6 +56,8 @@ def test_out_of_range_learner_options_are_refused(overrides, message):
     ("argv", "message"),
     [
         (["--iterations", "0"], "--iterations must be positive, got 0"),
+        (["--seed", "-1"], "--seed must be an integer in [0, 2**32), got -1"),
+        (["--seed", str(2**32)], "--seed must be an integer in [0, 2**32), got 4294967296"),
         (["--steps-per-iteration", "0"], "--steps-per-iteration must be positive, got 0"),
         (["--learner", "gamma=2"], "gamma must be a number in [0, 1], got 2"),
         (["--learner", "batch_size=0"], "batch_size must be a positive integer, got 0"),

@@ -154,6 +154,8 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> tuple[dict[st
     for name, value in (("--iterations", iterations), ("--steps-per-iteration", steps_per_iteration)):
         if value < 1:
             raise UsageError(f"{name} must be positive, got {value}")
+    if not 0 <= args.seed < 2**32:  # numpy's and torch's seeds are 32-bit unsigned integers
+        raise UsageError(f"--seed must be an integer in [0, 2**32), got {args.seed}")
     if args.algo != "fixed" and (args.w is not None or args.budget_from is not None):
         raise UsageError("--w and --budget-from are only for --algo fixed")
     if args.algo == "fixed" and args.w is None:

@@ -64,7 +64,8 @@ def check_parallel_reset(env: Any, copy: int, observations: Mapping[str, Any], k
 def check_parallel_step(env: Any, copy: int, acted: Collection[str], results: tuple, agents: Any, step: int) -> None:
     """
     Refuse a ParallelEnv step whose results name an agent that did not act (one that left and came back, or an
-    unknown one), that lack an agent that acted, or that hold non-finite observations or rewards.
+    unknown one), that lack an agent that acted, or that hold non-finite observations or rewards, or rewards of
+    another shape than the agent's ``reward_space``.
 
     :param acted: the agents that acted in this step (those live before it)
     :param results: what ``step`` returned: observations, rewards, terminations, truncations, infos
@@ -85,6 +86,12 @@ def check_parallel_step(env: Any, copy: int, acted: Collection[str], results: tu
                 raise ValueError(f"{_where(env, agent, step, copy)}: it acted but the step returned no {what} for it")
         check_finite(rewards[agent], "reward", env, repr(agent), step)
         check_finite(observations[agent], "observation", env, repr(agent), step)
+        expected = env.reward_space(agent).shape
+        if np.shape(rewards[agent]) != expected:
+            raise ValueError(
+                f"{_where(env, agent, step, copy)}: the reward has shape {np.shape(rewards[agent])}, its "
+                f"reward_space {expected}"
+            )
 
 
 def _where(env: Any, agent: Any, step: int, copy: int) -> str:

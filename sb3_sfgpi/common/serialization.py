@@ -38,28 +38,46 @@ def space_to_dict(space: spaces.Space) -> dict[str, Any]:
     raise ValueError(f"cannot describe {type(space).__name__} spaces as JSON")
 
 
+#: The largest count a stored space may declare (actions, values of a component, elements of a Box): beyond, no
+#: network or table of it fits in memory, and numpy's int64 arithmetic on it could overflow.
+MAX_SPACE_SIZE = 2**31 - 1
+
+
 def space_from_dict(data: dict[str, Any]) -> spaces.Space:
     """
     Rebuild a space described by :func:`space_to_dict`.
 
-    :raises ValueError: unknown or malformed description
+    :raises ValueError: unknown or malformed description, or counts beyond :data:`MAX_SPACE_SIZE`
     """
     try:
         kind = data["type"]
         if kind == "Discrete":
-            return spaces.Discrete(int(data["n"]), start=int(data["start"]))
+            return spaces.Discrete(int(_integers(data["n"], "n", 1)), start=int(_integers(data["start"], "start")))
         if kind == "MultiDiscrete":
-            return spaces.MultiDiscrete(np.array(data["nvec"], dtype=np.int64), start=np.array(data["start"]))
+            nvec, start = _integers(data["nvec"], "nvec", 1), _integers(data["start"], "start")
+            return spaces.MultiDiscrete(nvec, start=start)
         if kind == "MultiBinary":
-            return spaces.MultiBinary(data["n"])
+            n = _integers(data["n"], "n", 1)
+            return spaces.MultiBinary(int(n) if n.ndim == 0 else n.tolist())
         if kind == "Box":
             dtype = np.dtype(data["dtype"])
+            shape = tuple(int(n) for n in _integers(data["shape"], "shape", 1).reshape(-1))
+            if np.prod(np.array(shape, dtype=np.float64)) > MAX_SPACE_SIZE:
+                raise ValueError(f"a Box of shape {shape} is larger than {MAX_SPACE_SIZE} elements")
             low = np.array(data["low"], dtype=np.float64)
             high = np.array(data["high"], dtype=np.float64)
-            return spaces.Box(low=low.astype(dtype), high=high.astype(dtype), shape=tuple(data["shape"]), dtype=dtype)
-    except (KeyError, TypeError, ValueError) as error:
+            return spaces.Box(low=low.astype(dtype), high=high.astype(dtype), shape=shape, dtype=dtype)
+    except (KeyError, TypeError, ValueError, OverflowError) as error:
         raise ValueError(f"malformed space description {data!r}: {error}") from error
     raise ValueError(f"unknown space type {kind!r}")
+
+
+def _integers(value: Any, name: str, low: int = -MAX_SPACE_SIZE) -> np.ndarray:
+    """Integers of JSON (not bools, not floats) in ``[low, MAX_SPACE_SIZE]``, as an int64 array."""
+    array = np.array(value)
+    if array.dtype.kind not in "iu" or (array.size and (array.min() < low or array.max() > MAX_SPACE_SIZE)):
+        raise ValueError(f"{name} must hold integers in [{low}, {MAX_SPACE_SIZE}], got {value!r}")
+    return array.astype(np.int64)
 
 
 def _finite_or_str(array: np.ndarray) -> list:

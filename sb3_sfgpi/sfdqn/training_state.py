@@ -58,6 +58,9 @@ def restore_training_state(learner: SFDQN, state: Any) -> None:
         _check_replay(learner, replay, position)
         if len(counters) != 4 or not all(isinstance(c, int) and c >= 0 for c in counters):
             raise ValueError(f"the step counters must be 4 non-negative integers, got {counters!r}")
+        for key, value in state["policy"].items():  # finite in float32, as the networks hold them
+            if value.is_floating_point() and not bool(th.isfinite(value.to(th.float32)).all()):
+                raise ValueError(f"the saved network holds non-finite values in {key!r}")
         exploration_rate = state["exploration_rate"]
         if not isinstance(exploration_rate, float) or not 0.0 <= exploration_rate <= 1.0:
             raise ValueError(f"the exploration rate must be a number in [0, 1], got {exploration_rate!r}")
