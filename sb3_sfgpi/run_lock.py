@@ -36,7 +36,8 @@ class RunLock:
             _HELD[self.path][1] += 1
             self._held = True
             return
-        fd = os.open(self.path / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+        refuse_links(self.path)  # a writer follows no link out of its run directory
+        fd = os.open(self.path / ".lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -75,6 +76,23 @@ class RunLock:
 
     def __del__(self) -> None:
         self.release()
+
+
+def refuse_links(path: Path) -> None:
+    """
+    Refuse a run directory that holds a symbolic link anywhere inside it: what a run writes (its lock, logs, Π,
+    TensorBoard files, checkpoint) would go, or be deleted, wherever the link points.
+
+    :raises ValueError: naming the first link found
+    """
+    for folder, names, files in os.walk(path, followlinks=False):
+        for name in [*names, *files]:
+            entry = Path(folder) / name
+            if entry.is_symlink():
+                raise ValueError(
+                    f"{entry} is a symbolic link: a run directory must hold its own files (a writer would follow it "
+                    "out of the directory); replace it with the file or folder it points to"
+                )
 
 
 def _holder(text: str) -> str:

@@ -284,3 +284,21 @@ def test_a_full_disk_stops_training_in_one_line_and_the_checkpoint_survives(smal
     filler.unlink()
     assert cli_exit([*train, "--iterations", "2", "--resume"])[0] == 0
     assert json.loads((out / "checkpoint.json").read_text())["iteration"] == 2
+
+
+@pytest.mark.parametrize("link", [".lock", "logs", "logs/progress.csv", "policy_set", "tensorboard"])
+def test_a_link_inside_a_run_directory_is_refused_before_anything_is_written(tmp_path, cli_exit, link):
+    """A symbolic link inside a run made `--resume` write (or delete) where it pointed: now nothing is written."""
+    from conftest import FEW_VALIDATION, tiny_four_room, train_tiny_run
+
+    run = train_tiny_run(tmp_path / "run")
+    victim = tmp_path / "victim"
+    victim.mkdir() if (run / link).is_dir() else victim.write_text("mine")
+    before = sorted(p.name for p in victim.iterdir()) if victim.is_dir() else victim.read_text()
+    target = run / link
+    shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
+    target.symlink_to(victim, target_is_directory=victim.is_dir())
+    resume = [*tiny_four_room(), *FEW_VALIDATION, "--iterations", "2", "--out", str(run), "--resume", "--no-progress"]
+    code, stderr = cli_exit(resume)
+    assert code == 2 and f"{target} is a symbolic link" in stderr and len(stderr.strip().splitlines()) == 1
+    assert (sorted(p.name for p in victim.iterdir()) if victim.is_dir() else victim.read_text()) == before
