@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -117,12 +118,21 @@ def memory_budget() -> int | None:
         return None
 
 
-def read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
+def read_state_dict(directory: Path, file: str, max_bytes: int | None = None) -> dict[str, th.Tensor]:
+    """
+    The tensors of a policy file, read without running code and checked finite in float32.
+
+    :param max_bytes: the most its records may hold once decompressed (the network's declared size and some room):
+        checked in the archive's directory before anything is decompressed
+    :raises CorruptPolicySetError: a missing, linked-out, unreadable, oversized or non-finite file
+    """
     path = directory / file
     if Path(file).name != file or not path.is_file():
         raise CorruptPolicySetError(f"policy file {file!r} listed in the manifest of {directory} is missing")
     if path.is_symlink() and path.resolve().parent != directory.resolve():
         raise CorruptPolicySetError(f"policy file {path} is a link that leaves the directory")
+    if max_bytes is not None:
+        _check_unpacked_size(path, max_bytes)
     try:
         state = th.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for truncated files and refused pickles
@@ -133,6 +143,20 @@ def read_state_dict(directory: Path, file: str) -> dict[str, th.Tensor]:
         if value.is_floating_point() and not bool(th.isfinite(value.to(th.float32)).all()):
             raise CorruptPolicySetError(f"policy file {path} holds non-finite values (NaN or inf) in {key!r}")
     return state
+
+
+def _check_unpacked_size(path: Path, max_bytes: int) -> None:
+    """Refuse a policy file (a zip archive) whose records would take more than ``max_bytes`` once decompressed."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            unpacked = sum(info.file_size for info in archive.infolist())
+    except (zipfile.BadZipFile, OSError):
+        return  # not an archive: torch.load says what it is
+    if unpacked > max_bytes:
+        raise CorruptPolicySetError(
+            f"policy file {path} unpacks to {unpacked / 1e6:.1f} MB, more than its network can hold "
+            f"({max_bytes / 1e6:.1f} MB)"
+        )
 
 
 def file_state(net: nn.Module) -> dict[str, th.Tensor]:

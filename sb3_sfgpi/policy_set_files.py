@@ -118,13 +118,14 @@ def read_policy_set(directory: Path, retired: bool) -> list[tuple[nn.Module, dic
         files = [entry["file"] for entry in manifest["policies"]]
         if len(set(files)) != len(files):
             raise ValueError("the manifest lists a policy file more than once")
-        _check_memory(len(files), declared_bytes(manifest["network"], observation_space, action_space, reward_dim))
+        network_bytes = declared_bytes(manifest["network"], observation_space, action_space, reward_dim)
+        _check_memory(len(files), network_bytes)
         policies = []
         for entry in manifest["policies"]:
             if _checked_entry(entry) is not None and not retired:
                 continue
             net = build_network(manifest["network"], observation_space, action_space, reward_dim)
-            net.load_state_dict(read_state_dict(directory, entry["file"]))
+            net.load_state_dict(read_state_dict(directory, entry["file"], 2 * network_bytes + 2**20))
             _check_bound(net, entry)
             policies.append((net, entry))
         return policies

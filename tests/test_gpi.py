@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import shutil
+import zipfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -427,6 +428,12 @@ def iteration_not_an_integer(directory: Path) -> None:
     (directory / MANIFEST).write_text(json.dumps(manifest))
 
 
+def decompression_bomb(directory: Path) -> None:
+    """A small file whose deflated record unpacks to 8 MB: refused from the archive's directory, before unpacking."""
+    with zipfile.ZipFile(directory / "policy_001.pt", "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("archive/data.pkl", bytes(8 * 2**20))
+
+
 def missing_key(directory: Path) -> None:
     manifest = json.loads((directory / MANIFEST).read_text())
     del manifest["observation_space"]
@@ -458,6 +465,7 @@ def missing_key(directory: Path) -> None:
         (escaping_file_name, r"\.\./outside\.pt.* is missing"),
         (missing_key, "observation_space"),
         (retired_not_an_iteration, "'retired' of 'policy_001.pt' must be null or an iteration, got True"),
+        (decompression_bomb, r"policy_001.pt unpacks to 8.4 MB, more than its network can hold"),
         (beyond_float32, r"non-finite values \(NaN or inf\) in 'table.values'"),
         (huge_action_space, r"n must hold integers in \[1, 2147483647\]"),
         (iteration_not_an_integer, "'iteration' of 'policy_001.pt' must be null or a non-negative integer, got '1'"),

@@ -125,16 +125,22 @@ def _umask() -> int:
     return mask
 
 
+#: The largest JSON file read (a run's or a policy set's): parsing takes several times its size in memory.
+MAX_JSON_BYTES = 64 * 2**20
+
+
 def read_json(path: str | Path, what: str) -> Any:
     """
     Read a JSON file.
 
     :param what: what the file is, for error messages
-    :raises ValueError: missing or unreadable file
+    :raises ValueError: missing or unreadable file, or one larger than :data:`MAX_JSON_BYTES`
     """
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{what} {path} does not exist")
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise ValueError(f"{what} {path} is larger than {MAX_JSON_BYTES // 2**20} MB: not a file sb3-sfgpi wrote")
     try:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as error:  # RecursionError: nested too deep
