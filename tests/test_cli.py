@@ -142,7 +142,7 @@ def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys)
         (["evaluate", "RUN", "--w", "0", "0", "0"], "all zero"),
         (["evaluate", "NOT_A_RUN", "--w", "1", "0", "0"], "not a run directory"),
         (["evaluate", "RUN", "--w", "1", "0", "0", "--seed", "-1"], "--seed must be 0 or more"),
-        (["evaluate", "RUN", "--random-weights", "0"], "--random-weights must be positive, got 0"),
+        (["evaluate", "RUN", "--random-weights", "0"], "--random-weights must be in [1, 1000000], got 0"),
         (["evaluate", "RUN", "--random-weights", "2", "--members"], "--members needs --w"),
         (["train", "no-such-domain"], "unknown domain"),
         (["train", "four-room", "--set", "bogus=1", "--out", "NOT_A_RUN"], "--set bogus: unknown setting"),
@@ -151,7 +151,7 @@ def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys)
         (["train", "four-room", "--set", "ols_batch=spread", "--out", "NOT_A_RUN"], "--set ols_batch must be one of"),
         (["train", "four-room", "--set", "sharing=experience", "--out", "NOT_A_RUN"], "--set sharing must be one of"),
         (["train", "four-room", "--set", "prune=yes", "--out", "NOT_A_RUN"], "--set prune must be true or false"),
-        (["train", "four-room", "--set", "n_envs=0", "--out", "NOT_A_RUN"], "--set n_envs must be an integer >= 1"),
+        (["train", "four-room", "--set", "n_envs=0", "--out", "NOT_A_RUN"], "--set n_envs must be an integer in [1, 1000000]"),
         (
             ["train", "four-room", "--set", "validation_weights=0", "--set", "prune=true", "--out", "NOT_A_RUN"],
             "--set prune=true needs validation weights",

@@ -12,6 +12,7 @@ import numpy as np
 from sb3_sfgpi.cli.compare import episode_metrics
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_domain
+from sb3_sfgpi.cli.settings import MAX_COUNT
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.run_directory import RunDirectory
@@ -49,8 +50,8 @@ def run(args: argparse.Namespace) -> int:
     config = run_dir.read_config(required=CLI_SETTINGS)
     which = args.gpi_set or config.get("gpi_set", "all")
     state = run_dir.read_checkpoint() if run_dir.has_checkpoint() else {"n_policies": None, "iteration": None}
-    if args.random_weights is not None and args.random_weights < 1:
-        raise UsageError(f"--random-weights must be positive, got {args.random_weights}")
+    if args.random_weights is not None and not 1 <= args.random_weights <= MAX_COUNT:
+        raise UsageError(f"--random-weights must be in [1, {MAX_COUNT}], got {args.random_weights}")
     if args.members and args.w is None:
         raise UsageError("--members needs --w (each policy is run alone for those weights)")
     if args.episodes < 1:

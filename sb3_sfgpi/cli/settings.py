@@ -14,9 +14,12 @@ from sb3_sfgpi.cli.presets import DomainPreset
 from sb3_sfgpi.cli.values import key_values
 from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, VALUE_MODES
 
+#: The largest count a setting takes (weights, episodes, copies): beyond, a run would not fit in memory or time.
+MAX_COUNT = 1_000_000
+
 
 def _count(minimum: int) -> Callable[[Any], bool]:
-    return lambda value: isinstance(value, int) and not isinstance(value, bool) and value >= minimum
+    return lambda value: isinstance(value, int) and not isinstance(value, bool) and minimum <= value <= MAX_COUNT
 
 
 def _one_of(choices: Sequence[str]) -> Callable[[Any], bool]:
@@ -29,15 +32,15 @@ SETTABLE: dict[str, tuple[Callable[[Any], bool], str]] = {
     "value_mode": (_one_of(VALUE_MODES), f"one of {', '.join(VALUE_MODES)}"),
     "gpi_set": (_one_of(("all", "ccs")), "all or ccs"),
     "sharing": (_one_of(SHARINGS), f"one of {', '.join(SHARINGS)}"),
-    "validation_weights": (_count(0), "an integer >= 0"),
+    "validation_weights": (_count(0), f"an integer in [0, {MAX_COUNT}]"),
     "prune": (lambda value: isinstance(value, bool), "true or false"),
     "admit_together": (lambda value: isinstance(value, bool), "true or false"),
     "pool_replay": (lambda value: isinstance(value, bool), "true or false"),
-    "n_test_weights": (_count(1), "an integer >= 1"),
-    "value_episodes": (_count(1), "an integer >= 1"),
-    "eval_episodes": (_count(1), "an integer >= 1"),
-    "eval_workers": (_count(0), "an integer >= 0"),
-    "n_envs": (_count(1), "an integer >= 1"),
+    "n_test_weights": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
+    "value_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
+    "eval_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
+    "eval_workers": (_count(0), f"an integer in [0, {MAX_COUNT}]"),
+    "n_envs": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
 }
 #: Settings that do not change a run's results: a resumed run may use other values.
 MACHINE_SETTINGS = ("eval_workers",)

@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     """Train (or continue) a run; print a header, a line per iteration and the result."""
     preset = load_domain(args.domain)
     config, given = _run_config(args, preset)
-    run_dir = RunDirectory(args.out or Path("runs") / _default_name(args, config))
+    run_dir = RunDirectory(_checked_out(args.out or Path("runs") / _default_name(args, config)))
     if args.resume:
         given_here = config["env_kwargs"]  # the preset's and --env's: not from the run file
         config = _resumed_config(args, run_dir, config, given)
@@ -221,8 +221,25 @@ def _resumed_config(
     return {**saved, "iterations": config["iterations"], "eval_workers": eval_workers}
 
 
+#: The longest file or folder name most file systems take (ext4, APFS, NTFS: 255 bytes).
+MAX_NAME_BYTES = 255
+
+
+def _checked_out(path: Path) -> Path:
+    """The run directory's path, refused in one line where a name in it is longer than file systems take."""
+    too_long = [part for part in path.parts if len(part.encode()) > MAX_NAME_BYTES]
+    if too_long:
+        raise UsageError(f"--out: the name {too_long[0][:24]}... is longer than {MAX_NAME_BYTES} bytes")
+    return path
+
+
 def _created(run_dir: RunDirectory) -> RunDirectory:
     """The run directory, created if needed; a one-line error where it cannot be."""
+    too_long = [part for part in run_dir.path.parts if len(part.encode()) > MAX_NAME_BYTES]
+    if too_long:
+        raise UsageError(
+            f"--out {run_dir.path}: a name in it is longer than {MAX_NAME_BYTES} bytes ({too_long[0][:20]}...)"
+        )
     try:
         run_dir.path.mkdir(parents=True, exist_ok=True)
     except OSError as error:
