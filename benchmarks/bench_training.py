@@ -90,12 +90,7 @@ class OnePassPolicy(SFDQNPolicy):
             next_actions = greedy_actions(next_online, self.weights)
             next_psi = self.sf_net_target(batch.next_observations)
             target_psi = batch.rewards + (1 - batch.dones) * gamma * next_psi[rows, next_actions]
-        loss = F.smooth_l1_loss(current_psi, target_psi)
-        self.optimizer.zero_grad()
-        loss.backward()
-        th.nn.utils.clip_grad_norm_(self.sf_net.parameters(), max_grad_norm)
-        self.optimizer.step()
-        return loss.item()
+        return self.gradient_step(F.smooth_l1_loss(current_psi, target_psi), max_grad_norm)
 
 
 class SB3LoopOnly(SFDQN):

@@ -37,7 +37,7 @@ def network_spec(net: nn.Module) -> dict[str, Any]:
     """
     if isinstance(net, TabularSFNetwork):
         return {"kind": "tabular"}
-    if isinstance(net, (SFNetwork, ConditionedSFNetwork)):
+    if isinstance(net, SFNetwork):
         if type(net.features_extractor) is not FlattenExtractor or net.activation_fn.__name__ not in _ACTIVATIONS:
             raise ValueError(
                 "the policy-set format stores MLP SF networks with FlattenExtractor and a standard activation "

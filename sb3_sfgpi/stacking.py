@@ -91,7 +91,7 @@ class StackedMLP:
     @staticmethod
     def supports(net: nn.Module) -> bool:
         """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
-        if not isinstance(net, SFNetwork) or not isinstance(net.sf_net, nn.Sequential):
+        if type(net) is not SFNetwork or not isinstance(net.sf_net, nn.Sequential):  # a subclass may add layers
             return False
         extractor = net.features_extractor
         if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):

@@ -19,69 +19,46 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from gymnasium import spaces
-from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 from torch.nn import functional as F
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.sfdqn.networks import greedy_actions, scalarize
+from sb3_sfgpi.sfdqn.networks import SFNetwork, greedy_actions, scalarize
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 
 #: The hidden layers of a conditioned network unless told otherwise (GPI-LS's on minecart).
 CONDITIONED_NET_ARCH = [256, 256, 256, 256]
 
 
-class ConditionedSFNetwork(BasePolicy):
+class ConditionedSFNetwork(SFNetwork):
     """
     ``ψ(s, ·, w)``: the state's features and the weight's features (one layer each, ``net_arch[0]`` units), their
     element-wise product, then ``net_arch[1:]`` with layer normalisation, to ``n_actions × d`` outputs.
 
-    :param observation_space: Observation space
-    :param action_space: Action space (Discrete)
-    :param features_extractor: Features extractor (parameter-free: ``FlattenExtractor``)
-    :param features_dim: Number of features
-    :param reward_dim: Number of objectives ``d``
-    :param net_arch: Hidden layer sizes (at least one)
-    :param activation_fn: Activation function
-    :param normalize_images: Whether to divide images by 255
+    Its constructor's arguments are :class:`~sb3_sfgpi.sfdqn.networks.SFNetwork`'s (``net_arch``: at least one
+    layer, :data:`CONDITIONED_NET_ARCH` by default).
     """
 
-    action_space: spaces.Discrete
+    default_net_arch = tuple(CONDITIONED_NET_ARCH)
 
-    def __init__(
-        self,
-        observation_space: spaces.Space,
-        action_space: spaces.Discrete,
-        features_extractor: BaseFeaturesExtractor,
-        features_dim: int,
-        reward_dim: int,
-        net_arch: list[int] | None = None,
-        activation_fn: type[nn.Module] = nn.ReLU,
-        normalize_images: bool = True,
-    ):
-        super().__init__(
-            observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
-        )
-        self.net_arch = list(CONDITIONED_NET_ARCH if net_arch is None else net_arch)
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self.register_buffer("member_weights", th.full((self.reward_dim,), 1.0 / self.reward_dim))
+
+    def _make_layers(self) -> nn.Sequential:
+        """The weight's and the state's feature layers (attributes), and the layers from their product to ``ψ``."""
         if not self.net_arch:
             raise ValueError("a conditioned SF network needs at least one hidden layer (net_arch)")
-        self.activation_fn = activation_fn
-        self.features_dim = features_dim
-        self.reward_dim = reward_dim
-        self.n_actions = int(action_space.n)
-        width = self.net_arch[0]
-        self.state_features = nn.Sequential(nn.Linear(features_dim, width), activation_fn())
-        self.weight_features = nn.Sequential(nn.Linear(reward_dim, width), activation_fn())
+        width, activation_fn = self.net_arch[0], self.activation_fn
+        self.state_features = nn.Sequential(nn.Linear(self.features_dim, width), activation_fn())
+        self.weight_features = nn.Sequential(nn.Linear(self.reward_dim, width), activation_fn())
         layers: list[nn.Module] = []
         for n_in, n_out in itertools.pairwise(self.net_arch):
             layers += [nn.Linear(n_in, n_out), nn.LayerNorm(n_out), activation_fn()]
-        layers.append(nn.Linear(self.net_arch[-1], self.n_actions * reward_dim))
-        self.sf_net = nn.Sequential(*layers)
-        self.register_buffer("member_weights", th.full((reward_dim,), 1.0 / reward_dim))
+        layers.append(nn.Linear(self.net_arch[-1], self.n_actions * self.reward_dim))
+        return nn.Sequential(*layers)
 
     def forward(self, obs: PyTorchObs, weights: th.Tensor | None = None) -> th.Tensor:
         """
@@ -109,20 +86,6 @@ class ConditionedSFNetwork(BasePolicy):
         """Take ``network``'s parameters (a learner's latest), keeping the weights this member is bound to."""
         self.load_state_dict({**network.state_dict(), "member_weights": self.member_weights.clone()})
 
-    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
-        raise NotImplementedError("an SF network has no policy of its own: use SFDQNPolicy or GPIPolicy to act")
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(
-            net_arch=self.net_arch,
-            features_dim=self.features_dim,
-            reward_dim=self.reward_dim,
-            activation_fn=self.activation_fn,
-            features_extractor=self.features_extractor,
-        )
-        return data
-
 
 class ConditionedPolicy(SFDQNPolicy):
     """
@@ -148,6 +111,7 @@ class ConditionedPolicy(SFDQNPolicy):
 
     sf_net: ConditionedSFNetwork
     sf_net_target: ConditionedSFNetwork
+    sf_network_class = ConditionedSFNetwork
 
     def __init__(
         self,
@@ -163,51 +127,20 @@ class ConditionedPolicy(SFDQNPolicy):
         #: the weights trained beside ``weights`` and acted over by GPI, shape ``(k, d)`` (set by SFDQN)
         self.support = self.weights.reshape(1, -1).clone()
 
-    def make_sf_net(self) -> ConditionedSFNetwork:  # type: ignore[override]
-        """A new conditioned SF network with its own features extractor."""
-        features_extractor = self.make_features_extractor()
-        return ConditionedSFNetwork(
-            self.observation_space,
-            self.action_space,  # type: ignore[arg-type]
-            features_extractor,
-            features_extractor.features_dim,
-            self.reward_dim,
-            net_arch=self.net_arch,
-            activation_fn=self.activation_fn,
-            normalize_images=self.normalize_images,
-        ).to(self.device)
-
     def set_support(self, support: np.ndarray) -> None:
         """
         :param support: the weights to train beside the policy's own and to act over by GPI, shape ``(k, d)``
         """
         self.support = th.as_tensor(np.asarray(support, dtype=np.float32).reshape(-1, self.reward_dim)).to(self.device)
 
-    def _gpi_q(self, obs_tensor: th.Tensor, weights: th.Tensor) -> th.Tensor:
-        """``max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``, shape ``(batch, n_actions)``."""
+    def action_values(self, obs: PyTorchObs, weights: th.Tensor) -> th.Tensor:
+        """GPI's action values for ``w`` over the support: ``max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``."""
+        assert isinstance(obs, th.Tensor), "a conditioned network takes flat (Box) observations"
         members = th.cat([self.support.to(weights.device), weights.reshape(1, -1)])
-        batch = len(obs_tensor)
-        obs_each = obs_tensor.repeat(len(members), *([1] * (obs_tensor.dim() - 1)))
+        batch = len(obs)
+        obs_each = obs.repeat(len(members), *([1] * (obs.dim() - 1)))
         psi = self.sf_net(obs_each, members.repeat_interleave(batch, dim=0))
         return scalarize(psi, weights).view(len(members), batch, -1).max(dim=0).values
-
-    def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
-        return self._gpi_q(obs, self.weights).argmax(dim=1)  # type: ignore[arg-type]
-
-    def greedy(
-        self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
-    ) -> tuple[np.ndarray, bool]:
-        """GPI's action for ``w`` over the support (see :meth:`SFDQNPolicy.greedy`; ties go to the first)."""
-        q_values, vectorized = self.q_values(observation, weights)
-        return q_values.argmax(axis=1), vectorized
-
-    def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
-        """GPI's action values for ``w`` over the support, for one observation or a batch."""
-        self.set_training_mode(False)
-        obs_tensor, vectorized = self.obs_to_tensor(observation)
-        with th.no_grad():
-            weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
-            return self._gpi_q(obs_tensor, weights_tensor).cpu().numpy(), vectorized  # type: ignore[arg-type]
 
     def td_update(
         self,
@@ -241,9 +174,4 @@ class ConditionedPolicy(SFDQNPolicy):
             next_psi = self.sf_net_target(next_observations, weights)[rows, next_actions]
             target_psi = twice(batch.rewards) + (1 - twice(batch.dones)) * gamma * next_psi
         current_psi = self.sf_net(observations, weights)[rows, twice(batch.actions).long().flatten()]
-        loss = F.smooth_l1_loss(current_psi, target_psi)
-        self.optimizer.zero_grad()
-        loss.backward()
-        th.nn.utils.clip_grad_norm_(self.sf_net.parameters(), max_grad_norm)
-        self.optimizer.step()
-        return loss.item()
+        return self.gradient_step(F.smooth_l1_loss(current_psi, target_psi), max_grad_norm)

@@ -105,6 +105,8 @@ class SFNetwork(BasePolicy):
     """
 
     action_space: spaces.Discrete
+    #: the hidden layers when ``net_arch`` is None
+    default_net_arch: tuple[int, ...] = (64, 64)
 
     def __init__(
         self,
@@ -120,12 +122,16 @@ class SFNetwork(BasePolicy):
         super().__init__(
             observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
         )
-        self.net_arch = [64, 64] if net_arch is None else list(net_arch)
+        self.net_arch = list(self.default_net_arch if net_arch is None else net_arch)
         self.activation_fn = activation_fn
         self.features_dim = features_dim
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
-        self.sf_net = nn.Sequential(
+        self.sf_net = self._make_layers()
+
+    def _make_layers(self) -> nn.Sequential:
+        """The layers from the features to ``ψ``: an MLP of ``net_arch``."""
+        return nn.Sequential(
             *create_mlp(self.features_dim, self.n_actions * self.reward_dim, self.net_arch, self.activation_fn)
         )
 

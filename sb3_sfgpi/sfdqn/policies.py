@@ -49,6 +49,8 @@ class SFDQNPolicy(BasePolicy):
 
     sf_net: nn.Module
     sf_net_target: nn.Module
+    #: the class of the SF networks :meth:`make_sf_net` builds
+    sf_network_class: type[SFNetwork] = SFNetwork
 
     def __init__(
         self,
@@ -89,9 +91,9 @@ class SFDQNPolicy(BasePolicy):
         )
 
     def make_sf_net(self) -> SFNetwork:
-        """A new SF network with its own features extractor."""
+        """A new SF network (:attr:`sf_network_class`) with its own features extractor."""
         features_extractor = self.make_features_extractor()
-        return SFNetwork(
+        return self.sf_network_class(
             self.observation_space,
             self.action_space,  # type: ignore[arg-type]
             features_extractor,
@@ -106,7 +108,17 @@ class SFDQNPolicy(BasePolicy):
         return self._predict(obs, deterministic=deterministic)
 
     def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
-        return greedy_actions(self.sf_net(obs), self.weights)
+        return self.action_values(obs, self.weights).argmax(dim=1)
+
+    def action_values(self, obs: PyTorchObs, weights: th.Tensor) -> th.Tensor:
+        """
+        What the policy acts on: ``w · ψ(s, a)`` of every action (ties: the first action wins the argmax).
+
+        :param obs: a preprocessed batch
+        :param weights: shape ``(d,)``
+        :return: shape ``(batch, n_actions)``
+        """
+        return scalarize(self.sf_net(obs), weights)
 
     def greedy(
         self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
@@ -127,7 +139,7 @@ class SFDQNPolicy(BasePolicy):
         obs_tensor, vectorized = self.obs_to_tensor(observation)
         with th.no_grad():
             weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
-            return greedy_actions(self.sf_net(obs_tensor), weights_tensor).cpu().numpy(), vectorized
+            return self.action_values(obs_tensor, weights_tensor).argmax(dim=1).cpu().numpy(), vectorized
 
     def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """
@@ -141,7 +153,7 @@ class SFDQNPolicy(BasePolicy):
         obs_tensor, vectorized = self.obs_to_tensor(observation)
         with th.no_grad():
             weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
-            return scalarize(self.sf_net(obs_tensor), weights_tensor).cpu().numpy(), vectorized
+            return self.action_values(obs_tensor, weights_tensor).cpu().numpy(), vectorized
 
     def update_target(self, tau: float = 1.0) -> None:
         """Polyak update of the target network (if separate): ``(1 − τ) · target + τ · online`` (``τ = 1``: a copy)."""
@@ -177,7 +189,14 @@ class SFDQNPolicy(BasePolicy):
             next_psi = next_online if self.sf_net_target is self.sf_net else self.sf_net_target(batch.next_observations)
             target_psi = batch.rewards + (1 - batch.dones) * gamma * next_psi[rows, next_actions]
         current_psi = self.sf_net(batch.observations)[rows, batch.actions.long().flatten()]
-        loss = F.smooth_l1_loss(current_psi, target_psi)
+        return self.gradient_step(F.smooth_l1_loss(current_psi, target_psi), max_grad_norm)
+
+    def gradient_step(self, loss: th.Tensor, max_grad_norm: float) -> float:
+        """
+        One optimizer step on ``loss`` with the gradient norm of the SF network clipped at ``max_grad_norm``.
+
+        :return: the loss before the step
+        """
         self.optimizer.zero_grad()
         loss.backward()
         th.nn.utils.clip_grad_norm_(self.sf_net.parameters(), max_grad_norm)
