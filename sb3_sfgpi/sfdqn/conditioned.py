@@ -120,8 +120,11 @@ class ConditionedPolicy(SFDQNPolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
-        # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them
-        optimizer_kwargs = {"foreach": True, **(optimizer_kwargs or {})}
+        # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them (unless
+        # told otherwise, or to fuse them)
+        optimizer_kwargs = dict(optimizer_kwargs or {})
+        if not optimizer_kwargs.get("fused"):
+            optimizer_kwargs.setdefault("foreach", True)
         net_arch = list(CONDITIONED_NET_ARCH if net_arch is None else net_arch)
         super().__init__(*args, net_arch=net_arch, optimizer_kwargs=optimizer_kwargs, **kwargs)
         #: the weights trained beside ``weights`` and acted over by GPI, shape ``(k, d)`` (set by SFDQN)
