@@ -333,6 +333,8 @@ class RunDirectory:
                 raise ValueError(f"checkpoint {path}: {key!r} must be a non-negative integer, got {value!r}")
         if not isinstance(state.get("schedule"), dict) or not isinstance(state["schedule"].get("ols"), dict):
             raise ValueError(f"checkpoint {path}: no 'schedule' state (written by another version of sb3-sfgpi?)")
+        if not isinstance(state.get("learners", False), bool):
+            raise ValueError(f"checkpoint {path}: 'learners' must be true or false, got {state['learners']!r}")
         next_weights = state.get("next_weights")
         if next_weights is not None and not (
             isinstance(next_weights, dict) and all(_weights(w, 1) for w in next_weights.values())
