@@ -214,7 +214,7 @@ class OLSCallback(BaseCallback):
         they made take their latest network, and the values of those members are estimated again and recorded (OLS
         sees what each weight's policy returns now, and may find new corner weights).
         """
-        learners = {name: learner for name, learner in self.model.learners.items() if learner.conditioned}
+        learners = self.model.conditioned_learners
         if not learners:
             return
         seed = derive_seed(self.model.seed, "revalue", self.iteration)
@@ -241,8 +241,7 @@ class OLSCallback(BaseCallback):
         """
         rng = np.random.default_rng(derive_seed(self.model.seed, "random-weights", self.iteration))
         weights = self.schedule.next_weights(self.model.learner_names, rng)
-        conditioned = any(learner.conditioned for learner in self.model.learners.values())
-        if weights is None and conditioned and self.max_iterations is not None:
+        if weights is None and self.model.conditioned_learners and self.max_iterations is not None:
             return {name: random_weights(self.model.reward_dim, rng=rng) for name in self.model.learner_names}
         return weights
 
@@ -310,7 +309,7 @@ class OLSCallback(BaseCallback):
     def _write_checkpoint(self, next_weights: AgentWeights | None) -> None:
         if self.run_dir is None:
             return
-        going_on = {name: learner for name, learner in self.model.learners.items() if learner.conditioned}
+        going_on = self.model.conditioned_learners
         if going_on:  # before the checkpoint that names them
             states = {name: training_state(learner) for name, learner in going_on.items()}
             self.run_dir.write_learners(self.iteration, states)

@@ -38,7 +38,8 @@ from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.common.weights import unique_weights
+from sb3_sfgpi.common.weights import SAME_WEIGHT
+from sb3_sfgpi.ols import unique_points
 from sb3_sfgpi.run_settings import SHARED, SHARINGS
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.training_state import restore_training_state
@@ -195,6 +196,11 @@ class MultiAgentRunner:
             raise ValueError(f"SFDQN needs Discrete actions, got {env.action_space(first)}")
 
     @property
+    def conditioned_learners(self) -> dict[str, SFDQN]:
+        """The learners conditioned on the weights, by name: they go on across iterations."""
+        return {name: learner for name, learner in self.learners.items() if learner.conditioned}
+
+    @property
     def reward_dim(self) -> int:
         return self._reward_dim
 
@@ -266,7 +272,8 @@ class MultiAgentRunner:
                 raise ValueError("the multi-agent runner supports train_freq in steps only")
             if learner.conditioned:  # seeded by iteration, as a new learner is: a resumed run goes on the same
                 learner.set_random_seed(derive_seed(self.seed, iteration, name))
-                learner.set_weight_support(unique_weights([*(support or []), *this_iteration]))
+                support_weights = np.array([*(support or []), *this_iteration], dtype=np.float64)
+                learner.set_weight_support(np.array(unique_points(support_weights, SAME_WEIGHT)))
             self.learners[name] = learner
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for name, learner in self.learners.items():

@@ -91,10 +91,10 @@ def _corner_weights(values: np.ndarray, tolerance: float) -> list[np.ndarray]:
     free = vertices[:, :-1]
     weights = np.clip(np.hstack([free, 1.0 - free.sum(axis=1, keepdims=True)]), 0.0, None)
     weights /= weights.sum(axis=1, keepdims=True)
-    return _deduplicate(weights[np.lexsort(weights.T[::-1])], tolerance)
+    return unique_points(weights[np.lexsort(weights.T[::-1])], tolerance)
 
 
-def _deduplicate(points: np.ndarray, tolerance: float) -> list[np.ndarray]:
+def unique_points(points: np.ndarray, tolerance: float) -> list[np.ndarray]:
     """
     The points, in order, without those within ``tolerance`` (max-norm) of a point kept before them.
 

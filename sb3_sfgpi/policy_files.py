@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 import os
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -139,10 +140,21 @@ def read_state_dict(directory: Path, file: str, max_bytes: int | None = None) ->
         raise CorruptPolicySetError(f"policy file {path} is unreadable or unsafe: {error}") from error
     if not isinstance(state, dict) or not all(isinstance(v, th.Tensor) for v in state.values()):
         raise CorruptPolicySetError(f"policy file {path} does not hold a state dict of tensors")
-    for key, value in state.items():  # finite in float32, as the networks and tables hold them (1e39 is inf there)
-        if value.is_floating_point() and not bool(th.isfinite(value.to(th.float32)).all()):
-            raise CorruptPolicySetError(f"policy file {path} holds non-finite values (NaN or inf) in {key!r}")
+    key = non_finite_key(state)
+    if key is not None:
+        raise CorruptPolicySetError(f"policy file {path} holds non-finite values (NaN or inf) in {key!r}")
     return state
+
+
+def non_finite_key(state: Mapping[str, th.Tensor]) -> str | None:
+    """
+    The first tensor of a network's state dict that is not finite in float32, the networks' and tables' dtype (a
+    float64 1e39 is finite, and inf once loaded), or None.
+    """
+    for key, value in state.items():
+        if value.is_floating_point() and not bool(th.isfinite(value.to(th.float32)).all()):
+            return key
+    return None
 
 
 def _check_unpacked_size(path: Path, max_bytes: int) -> None:

@@ -9,7 +9,8 @@ import torch as th
 from momdp import Fig1MOMDP, observation, optimal_policy, optimal_value, policy_of, policy_value, successor_features
 
 from sb3_sfgpi import MASFOLS, GPIPolicy
-from sb3_sfgpi.common.weights import unique_weights
+from sb3_sfgpi.common.weights import SAME_WEIGHT
+from sb3_sfgpi.ols import unique_points
 from sb3_sfgpi.policy_files import CorruptPolicySetError
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
@@ -138,7 +139,7 @@ def test_one_learner_goes_on_over_the_iterations_for_the_support(three_iteration
     (learner,) = three_iterations.runner.learners.values()
     assert learner.num_timesteps == 900 and learner.replay_buffer.buffer_size == 5_000  # not cut to one iteration
     trained = [np.array(row["weights_trained"]["agent_0"]) for row in three_iterations.history]
-    np.testing.assert_allclose(learner.weight_support, unique_weights(trained))
+    np.testing.assert_allclose(learner.weight_support, unique_points(np.array(trained), SAME_WEIGHT))
     record = three_iterations.callback.record
     for net, info in zip(record.networks, record.infos, strict=True):  # every member follows the latest network
         assert isinstance(net, ConditionedSFNetwork)
@@ -169,6 +170,11 @@ def test_a_saved_learner_state_that_does_not_fit_is_refused(three_iterations):
     state = training_state(learner)
     state["replay"]["observations"][0, 0, 0] = float("nan")
     with pytest.raises(ValueError, match="non-finite"):
+        restore_training_state(learner, state)
+    state = training_state(learner)
+    key = next(iter(state["policy"]))
+    state["policy"][key] = state["policy"][key].to(th.float64).fill_(1e39)  # finite in float64, inf in float32
+    with pytest.raises(ValueError, match="non-finite values"):
         restore_training_state(learner, state)
     state = training_state(learner)
     del state["optimizer"]

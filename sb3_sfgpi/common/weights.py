@@ -132,23 +132,13 @@ def random_weights(reward_dim: int, n: int | None = None, rng: np.random.Generat
     return generator.dirichlet(np.ones(reward_dim), size=n)
 
 
+#: Two weight vectors within this of each other (max-norm) are the same weight (run files round them).
+SAME_WEIGHT = 1e-3
+
+
 def same_weight(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float]) -> bool:
-    """Whether two weight vectors are the same weight: within 1e-3 of each other, max-norm (run files round them)."""
-    return bool(np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-3)
-
-
-def unique_weights(weights: Sequence[np.ndarray]) -> np.ndarray:
-    """
-    The weights without repeats (the same weight by :func:`same_weight`), in the order of their first appearance.
-
-    :param weights: weight vectors of one length
-    :return: shape ``(k, d)``
-    """
-    kept: list[np.ndarray] = []
-    for w in weights:
-        if not any(same_weight(w, u) for u in kept):
-            kept.append(np.asarray(w, dtype=np.float64))
-    return np.array(kept)
+    """Whether two weight vectors are the same weight: within :data:`SAME_WEIGHT` of each other, max-norm."""
+    return bool(np.abs(np.asarray(a) - np.asarray(b)).max() <= SAME_WEIGHT)
 
 
 def format_weights(w: Sequence[float]) -> str:

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from sb3_sfgpi.policy_files import non_finite_key
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 
 #: The replay buffer's arrays a state holds (those the buffer has), their stored rows only.
@@ -58,9 +59,9 @@ def restore_training_state(learner: SFDQN, state: Any) -> None:
         _check_replay(learner, replay, position)
         if len(counters) != 4 or not all(isinstance(c, int) and c >= 0 for c in counters):
             raise ValueError(f"the step counters must be 4 non-negative integers, got {counters!r}")
-        for key, value in state["policy"].items():  # finite in float32, as the networks hold them
-            if value.is_floating_point() and not bool(th.isfinite(value.to(th.float32)).all()):
-                raise ValueError(f"the saved network holds non-finite values in {key!r}")
+        key = non_finite_key(state["policy"])
+        if key is not None:
+            raise ValueError(f"the saved network holds non-finite values in {key!r}")
         exploration_rate = state["exploration_rate"]
         if not isinstance(exploration_rate, float) or not 0.0 <= exploration_rate <= 1.0:
             raise ValueError(f"the exploration rate must be a number in [0, 1], got {exploration_rate!r}")
