@@ -149,7 +149,9 @@ class OLSCallback(BaseCallback):
 
     def _start_run(self) -> None:
         runner = self.model
-        self._tests = TestEvaluation(self.evaluation, runner.rollout, runner.reward_dim, runner.seed, runner.agents)
+        self._tests = TestEvaluation(
+            self.evaluation, runner.rollout, runner.reward_dim, runner.seed, runner.agents, runner.lockstep
+        )
         validation_weights = self.admission.weights(runner.reward_dim, runner.seed)
         self.admission.start(
             ValidationScorer(validation_weights, runner.rollout, self.admission.episodes, runner.seed, "validation")

@@ -26,7 +26,7 @@ from tqdm.auto import tqdm
 
 from sb3_sfgpi.common.metrics import expected_utility
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
-from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
+from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, RowPolicy, run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.serialization import jsonable
 from sb3_sfgpi.common.weights import validate_weights
@@ -34,6 +34,9 @@ from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
 
 #: Runs a joint policy for some episodes from a seed (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.rollout`).
 Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
+#: Runs episodes for many weights together, one batched decision a step, where it can (else None): ``lockstep(policy,
+#: weights, seeds, per_result)`` (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.lockstep`).
+Lockstep = Callable[[RowPolicy, np.ndarray, list[int], int], list[EpisodeReturns] | None]
 
 
 def _no_actions(observations: dict[str, Any], action_masks: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -379,12 +382,22 @@ class TestEvaluation:
     :param reward_dim: the number of objectives (the test weights are checked against it)
     :param seed: the run's seed: the episodes of test weight ``i`` start from ``derive_seed(seed, "eval", i)``
     :param agents: the env's agents (for ``policies="own"``)
+    :param lockstep: where given, the in-process episodes of every test weight run together by it (the same
+        returns, one batched GPI decision a step)
     :raises ValueError: a test weight of the wrong length, negative or all zero
     """
 
     __test__ = False  # not a pytest test class
 
-    def __init__(self, config: EvaluationConfig, rollout: Rollout, reward_dim: int, seed: int, agents: list[str]):
+    def __init__(
+        self,
+        config: EvaluationConfig,
+        rollout: Rollout,
+        reward_dim: int,
+        seed: int,
+        agents: list[str],
+        lockstep: Lockstep | None = None,
+    ):
         if config.workers > 0 and config.env_fn is None:
             raise ValueError("an evaluation with workers > 0 needs env_fn (and env_kwargs) to build the workers' envs")
         if config.test_weights is None or np.ndim(config.test_weights) != 2:
@@ -392,7 +405,7 @@ class TestEvaluation:
         self.config = config
         self.weights = np.array([validate_weights(w, reward_dim, "test weight") for w in config.test_weights])
         self.seeds = [derive_seed(seed, "eval", i) for i in range(len(self.weights))]
-        self._rollout, self._agents = rollout, agents
+        self._rollout, self._agents, self._lockstep = rollout, agents, lockstep
         self._pool: ParallelEvaluator | None = None
 
     def policies(self, policy_set: GPIPolicy) -> GPIPolicy:
@@ -424,6 +437,12 @@ class TestEvaluation:
             ]
             return self._pool.run(jobs)
         acting, agents = self.policies(policy_set), self._agents if own else None
+        if self._lockstep is not None and not own:
+            episodes = config.episodes
+            seeds = [seed + episode for seed in self.seeds for episode in range(episodes)]
+            together = self._lockstep(acting.predict_rows, np.repeat(self.weights, episodes, axis=0), seeds, episodes)
+            if together is not None:
+                return together
         bar = tqdm(self.weights, desc="evaluating GPI", unit="w", leave=False, disable=not progress_bar)
         return [
             self._rollout(acting.joint_policy(w, agents), config.episodes, seed)

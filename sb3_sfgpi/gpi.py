@@ -83,6 +83,7 @@ class GPIPolicy:
         self.infos: list[PolicyInfo] = []
         self._stacked: Stacked | None = None
         self._weights_cache: tuple[Any, tuple[np.ndarray, th.Tensor, np.ndarray]] | None = None
+        self._rows_cache: tuple[Any, tuple[np.ndarray, th.Tensor, np.ndarray]] | None = None
         for model in models:
             self.add(model)
 
@@ -182,7 +183,7 @@ class GPIPolicy:
     def networks_changed(self) -> None:
         """Drop what the set derived from its networks (stacked copies): call it after changing them in place."""
         self._stacked = None
-        self._weights_cache = None
+        self._weights_cache = self._rows_cache = None
 
     def pop(self) -> PolicyInfo:
         """
@@ -394,12 +395,14 @@ class GPIPolicy:
         return self._gpi_q(obs, weights)
 
     def _gpi_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
+        """GPI's action values of a batch for one weight (shape ``(d,)``) or one per observation (``(batch, d)``)."""
         stacked = self._stack()
         if numpy_tables(stacked) and self.device.type == "cpu":
             return stacked.q_values_numpy(obs, weights[2])
         obs_tensor = th.as_tensor(obs, device=self.device)
+        each = weights[1] if weights[1].dim() == 1 else weights[1][:, None, :]
         with th.no_grad():
-            return th.amax(weighted_sum(stacked.psi(obs_tensor), weights[1]), dim=0).cpu().numpy()
+            return th.amax(weighted_sum(stacked.psi(obs_tensor), each), dim=0).cpu().numpy()
 
     def _policy_q(self, obs: np.ndarray, weights: tuple[np.ndarray, th.Tensor, np.ndarray]) -> np.ndarray:
         """Every policy's action values ``w · ψ^π(s, a)``, shape ``(n_policies, batch, n_actions)``."""
@@ -463,6 +466,39 @@ class GPIPolicy:
         masks = checked_masks(action_masks, len(obs), self.action_space.n)
         actions = masked(self._gpi_q(obs, weights), masks).argmax(axis=1)
         return (actions if vectorized else actions[0]), state
+
+    def predict_rows(
+        self, observations: np.ndarray, weights: np.ndarray, action_masks: np.ndarray | None = None
+    ) -> np.ndarray:
+        """
+        GPI actions of a batch in which every observation has its own preference weights (episodes for several
+        weights stepped together): row ``i`` gets :meth:`predict`'s action for ``observations[i]`` and
+        ``weights[i]``, computed the same way.
+
+        :param observations: a batch of observations
+        :param weights: shape ``(batch, d)``
+        :param action_masks: as :meth:`predict`'s
+        :return: the actions, shape ``(batch,)``
+        :raises ValueError: bad weights or masks, or a weight per observation missing
+        """
+        rows = self._validated_rows(weights)
+        obs, _ = self._obs_to_array(observations)
+        if len(rows[0]) != len(obs):
+            raise ValueError(f"one weight per observation: got {len(rows[0])} weights for {len(obs)} observations")
+        masks = checked_masks(action_masks, len(obs), self.action_space.n)
+        return masked(self._gpi_q(obs, rows), masks).argmax(axis=1)
+
+    def _validated_rows(self, weights: np.ndarray) -> tuple[np.ndarray, th.Tensor, np.ndarray]:
+        """:meth:`_validated_weights` of each row of ``weights`` (the last rows remembered)."""
+        raw = np.asarray(weights, dtype=np.float64)
+        if raw.ndim != 2:
+            raise ValueError(f"weights must have shape (batch, {self.reward_dim}), got {raw.shape}")
+        key = (raw.shape, raw.tobytes())
+        if self._rows_cache is None or self._rows_cache[0] != key:
+            rows = np.array([validate_weights(w, self.reward_dim) for w in raw]).reshape(raw.shape)
+            tensor = th.as_tensor(rows, dtype=th.float32, device=self.device)
+            self._rows_cache = (key, (rows, tensor, rows.astype(np.float32)))
+        return self._rows_cache[1]
 
     def for_weights(self, w: np.ndarray | Sequence[float]) -> GPIPredictor:
         """

@@ -34,9 +34,9 @@ from sb3_sfgpi.common.agent_views import (
     replaced,
 )
 from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
-from sb3_sfgpi.common.env_copies import EnvCopies, SingleCopy
+from sb3_sfgpi.common.env_copies import ONE_PER_PROCESS, EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
-from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
+from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, RowPolicy, run_episodes, run_lockstep
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import SAME_WEIGHT
 from sb3_sfgpi.ols import unique_points
@@ -167,6 +167,9 @@ class MultiAgentRunner:
         #: ``(copy, agent)`` -> the action mask of its last observation (None: every action)
         self._masks: dict[tuple[int, str], np.ndarray | None] = {}
         self._episode_steps = [0] * n_envs
+        self._env_fn, self._env_kwargs = env_fn, dict(env_kwargs or {})
+        #: copies of the env for :meth:`lockstep`
+        self._env_copies: list[ParallelEnv] = []
         self.learners: dict[str, SFDQN] = {}
         self._learner_callbacks: dict[str, BaseCallback] = {}
         self._gamma = gamma
@@ -498,10 +501,35 @@ class MultiAgentRunner:
         episode; the copies of ``n_envs > 1`` go on where they were.
         """
         returns = run_episodes(self.env, policy, n_episodes, self.gamma, seed=seed)
+        self._after_rollout()
+        return returns
+
+    def lockstep(
+        self, policy: RowPolicy, weights: np.ndarray, seeds: list[int], per_result: int = 1
+    ) -> list[EpisodeReturns] | None:
+        """
+        :func:`~sb3_sfgpi.common.rollouts.run_lockstep`'s episodes, the last on the shared env and the others on
+        copies built by ``env_fn`` (once, kept): the returns :meth:`rollout` gives one episode after another, and the
+        shared env ends as that leaves it. None where there are no copies: without ``env_fn``, or for an env whose
+        simulator allows one per process (``metadata[ONE_PER_PROCESS]``, SUMO's through libsumo); then
+        :meth:`rollout` runs the episodes.
+
+        :param per_result: consecutive episodes whose returns form one result
+        """
+        if self._env_fn is None or self.env.metadata.get(ONE_PER_PROCESS):
+            return None
+        while len(self._env_copies) < len(seeds) - 1:
+            self._env_copies.append(as_parallel_env(self._env_fn(**self._env_kwargs)))
+        envs = [*self._env_copies[: len(seeds) - 1], self.env]
+        returns = run_lockstep(envs, policy, weights, seeds, self.gamma, per_result)
+        self._after_rollout()
+        return returns
+
+    def _after_rollout(self) -> None:
+        """Where training runs on the shared env (``n_envs=1``), start it on a fresh episode."""
         if self.n_envs == 1:
             self.reset_env()
             self._monitors = {}
-        return returns
 
     def close(self) -> None:
         """Stop the processes of the env's copies (``n_envs > 1``); the env itself is the caller's."""

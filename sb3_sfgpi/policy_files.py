@@ -44,14 +44,20 @@ def network_spec(net: nn.Module) -> dict[str, Any]:
                 "the policy-set format stores MLP SF networks with FlattenExtractor and a standard activation "
                 f"({sorted(_ACTIVATIONS)}), got {type(net.features_extractor).__name__} / {net.activation_fn.__name__}"
             )
-        return {
-            "kind": "conditioned-mlp" if isinstance(net, ConditionedSFNetwork) else "mlp",
+        spec = {
+            "kind": "mlp",
             "net_arch": list(net.net_arch),
             "activation_fn": net.activation_fn.__name__,
             "normalize_images": bool(net.normalize_images),
         }
+        if isinstance(net, ConditionedSFNetwork):
+            spec.update(kind="conditioned-mlp", n_heads=net.n_heads)
+        return spec
     raise ValueError(f"not an SF network: {type(net).__name__}")
 
+
+#: The most heads a conditioned network of a policy set may have.
+MAX_HEADS = 16
 
 #: The MLP network classes by their kind in a network spec.
 MLP_KINDS: dict[str, type[SFNetwork] | type[ConditionedSFNetwork]] = {
@@ -75,6 +81,7 @@ def build_network(
             known = sorted(_ACTIVATIONS)
             raise ValueError(f"unknown activation {spec.get('activation_fn')!r}, expected one of {known}")
         extractor = FlattenExtractor(observation_space)
+        heads = {"n_heads": _n_heads(spec)} if spec["kind"] == "conditioned-mlp" else {}
         return MLP_KINDS[spec["kind"]](
             observation_space,
             action_space,
@@ -84,8 +91,20 @@ def build_network(
             net_arch=[int(n) for n in spec["net_arch"]],
             activation_fn=_ACTIVATIONS[spec["activation_fn"]],
             normalize_images=bool(spec.get("normalize_images", True)),
+            **heads,
         )
     raise ValueError(f"unknown network kind {spec.get('kind')!r}")
+
+
+def _n_heads(spec: dict[str, Any]) -> int:
+    """The number of heads of a conditioned network's spec (1 where it says none).
+
+    :raises ValueError: not a positive integer
+    """
+    n_heads = spec.get("n_heads", 1)
+    if type(n_heads) is not int or not 1 <= n_heads <= MAX_HEADS:
+        raise ValueError(f"n_heads must be an integer in [1, {MAX_HEADS}], got {n_heads!r}")
+    return n_heads
 
 
 def declared_bytes(
@@ -104,9 +123,10 @@ def declared_bytes(
     if spec.get("kind") in MLP_KINDS:
         sizes = [spaces.flatdim(observation_space), *[int(n) for n in spec["net_arch"]], outputs]
         linear = sum((n_in + 1) * n_out for n_in, n_out in itertools.pairwise(sizes))
-        if spec["kind"] == "conditioned-mlp":  # the weight's features, the layer norms, the member's weights
+        if spec["kind"] == "conditioned-mlp":  # per head: the weight's features, the layer norms; the member's weights
             hidden = [int(n) for n in spec["net_arch"]]
-            linear += (reward_dim + 1) * hidden[0] + 2 * sum(hidden[1:]) + reward_dim
+            linear += (reward_dim + 1) * hidden[0] + 2 * sum(hidden[1:])
+            linear = linear * _n_heads(spec) + reward_dim
         return linear * 4
     raise ValueError(f"unknown network kind {spec.get('kind')!r}")
 

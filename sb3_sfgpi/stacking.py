@@ -59,10 +59,15 @@ class StackedTables:
         return self.policy_q_numpy(obs, weights).max(axis=1)
 
     def policy_q_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """Every policy's action values ``w · ψ^π(s, a)`` of a batch, shape ``(batch, P, A)`` (CPU sets)."""
+        """
+        Every policy's action values ``w · ψ^π(s, a)`` of a batch, shape ``(batch, P, A)`` (CPU sets).
+
+        :param weights: shape ``(d,)``, or ``(batch, d)``: each observation's own
+        """
         index = self.rows(obs)  # raises ValueError for an observation outside the space
-        rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(-1, self.reward_dim)
-        return weighted_sum(rows, weights).reshape(-1, self.n_policies, self.n_actions)
+        rows = self.tables_numpy.take(self.stack_row_numpy.take(index), axis=0).reshape(len(index), -1, self.reward_dim)
+        each = weights if weights.ndim == 1 else weights[:, None, :]
+        return weighted_sum(rows, each).reshape(-1, self.n_policies, self.n_actions)
 
 
 class StackedMLP:

@@ -3,6 +3,8 @@ support, Π members bound to their weights, safe files, exploration counted acro
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch as th
@@ -21,8 +23,8 @@ SUPPORT = np.array([[0.8, 0.2], [0.3, 0.7]])
 GAMMA = 0.9
 
 
-@pytest.fixture(scope="module")
-def trained() -> SFDQN:
+@pytest.fixture(scope="module", params=[1, 2], ids=["one head", "two heads"])
+def trained(request) -> SFDQN:
     """One conditioned SFDQN trained for (0.8, 0.2) with the support above, on uniformly random transitions."""
     model = SFDQN(
         "ConditionedMlpPolicy",
@@ -37,7 +39,7 @@ def trained() -> SFDQN:
         exploration_initial_eps=1.0,
         exploration_final_eps=1.0,  # uniform behaviour: every pair is in the buffer
         buffer_size=5_000,
-        policy_kwargs=dict(net_arch=[64, 64]),
+        policy_kwargs=dict(net_arch=[64, 64], n_heads=request.param),
         seed=0,
     )
     model.set_weight_support(SUPPORT)
@@ -46,9 +48,10 @@ def trained() -> SFDQN:
 
 
 def _psi(model: SFDQN, state: int, w: np.ndarray) -> np.ndarray:
-    obs = th.as_tensor(observation(state, one_hot=True)).reshape(1, -1)
+    device = model.policy.device
+    obs = th.as_tensor(observation(state, one_hot=True), device=device).reshape(1, -1)
     with th.no_grad():
-        return model.policy.sf_net(obs, th.as_tensor(w, dtype=th.float32))[0].numpy()
+        return model.policy.sf_net(obs, th.as_tensor(w, dtype=th.float32, device=device))[0].cpu().numpy()
 
 
 @pytest.mark.parametrize("w", SUPPORT.tolist())
@@ -72,11 +75,11 @@ def test_members_of_the_set_are_bound_to_their_weights_and_saved_safely(trained,
     for i, w in enumerate(SUPPORT):
         member = policy_set.networks[i]
         assert isinstance(member, ConditionedSFNetwork)
-        np.testing.assert_allclose(member.member_weights.numpy(), w)
+        np.testing.assert_allclose(member.member_weights.cpu().numpy(), w)
         expected = np.stack([_psi(trained, s, w) for s in range(4)])
-        np.testing.assert_allclose(
-            member(th.as_tensor(obs)).numpy(), expected, rtol=1e-5, atol=1e-4
-        )  # batched: other roundings
+        with th.no_grad():
+            psi = member(th.as_tensor(obs, device=member.member_weights.device)).cpu().numpy()
+        np.testing.assert_allclose(psi, expected, rtol=1e-5, atol=1e-4)  # batched: other roundings
     policy_set.save(tmp_path / "set")
     loaded = GPIPolicy.load(tmp_path / "set")
     for w in [[0.3, 0.7], [1.0, 0.0]]:
@@ -86,6 +89,39 @@ def test_members_of_the_set_are_bound_to_their_weights_and_saved_safely(trained,
     th.save(state, tmp_path / "set" / "policy_001.pt")
     with pytest.raises(CorruptPolicySetError, match="bound to the weights"):
         GPIPolicy.load(tmp_path / "set")
+    manifest = json.loads((tmp_path / "set" / "manifest.json").read_text())
+    assert manifest["network"]["n_heads"] == trained.policy.sf_net.n_heads
+    for n_heads in (0, 17, "2", 1.0):
+        manifest["network"]["n_heads"] = n_heads
+        (tmp_path / "set" / "manifest.json").write_text(json.dumps(manifest))
+        with pytest.raises(ValueError, match="n_heads must be an integer"):
+            GPIPolicy.load(tmp_path / "set")
+
+
+def test_the_target_bootstraps_from_the_lowest_head_and_every_head_learns_it():
+    model = SFDQN(
+        "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), weights=SUPPORT[0], gamma=GAMMA, batch_size=8,
+        learning_starts=0, learning_rate=1e-3, policy_kwargs=dict(net_arch=[16, 16], n_heads=3), seed=0,
+    )  # fmt: skip
+    model.learn(20)
+    policy = model.policy
+    assert len(policy.sf_net.sf_net) == 3
+    np.random.seed(5)  # the replay samples with numpy's global generator
+    batch = model.replay_buffer.sample(8)
+    np.random.seed(5)
+    rows = th.arange(8, device=policy.device)
+    with th.no_grad():
+        w = policy.weights.expand(8, -1)
+        next_actions = (policy.sf_net(batch.next_observations, w) @ policy.weights).argmax(dim=1)
+        heads = policy.sf_net_target.heads(batch.next_observations, w)[:, rows, next_actions]  # (3, 8, d)
+        lowest = (heads @ policy.weights).argmin(dim=0)
+        target = batch.rewards + (1 - batch.dones) * GAMMA * heads[lowest, rows]
+        current = policy.sf_net.heads(batch.observations, w)[:, rows, batch.actions.flatten()]
+        expected = sum(th.nn.functional.smooth_l1_loss(current[h], target).item() for h in range(3))
+    assert policy.td_update(model.replay_buffer, 8, GAMMA, 10.0) == pytest.approx(expected, rel=1e-5)
+    assert not th.equal(heads[0], heads[1])  # the heads differ: the lowest one is a choice
+    with pytest.raises(ValueError, match="at least one head"):
+        SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(n_heads=0))
 
 
 def test_exploration_steps_count_across_calls_of_learn():
@@ -111,7 +147,7 @@ def test_support_is_for_conditioned_policies_and_survives_save_and_load(trained,
     trained.save(tmp_path / "model.zip")
     loaded = SFDQN.load(tmp_path / "model.zip")
     np.testing.assert_array_equal(loaded.weight_support, SUPPORT)
-    np.testing.assert_array_equal(loaded.policy.support.numpy(), SUPPORT.astype(np.float32))
+    np.testing.assert_array_equal(loaded.policy.support.cpu().numpy(), SUPPORT.astype(np.float32))
     obs = observation(0, one_hot=True)
     for w in ([0.3, 0.7], [0.5, 0.5]):
         assert loaded.predict(obs, deterministic=True, w=w)[0] == trained.predict(obs, deterministic=True, w=w)[0]
@@ -143,10 +179,10 @@ def test_one_learner_goes_on_over_the_iterations_for_the_support(three_iteration
     record = three_iterations.callback.record
     for net, info in zip(record.networks, record.infos, strict=True):  # every member follows the latest network
         assert isinstance(net, ConditionedSFNetwork)
-        np.testing.assert_allclose(net.member_weights.numpy(), info.weights, atol=1e-7)
+        np.testing.assert_allclose(net.member_weights.cpu().numpy(), info.weights, atol=1e-7)
         state = {k: v for k, v in net.state_dict().items() if k != "member_weights"}
         for key, value in state.items():
-            assert th.equal(value, learner.policy.sf_net.state_dict()[key])
+            assert th.equal(value.cpu(), learner.policy.sf_net.state_dict()[key].cpu())
 
 
 def test_a_resumed_run_goes_on_exactly(three_iterations, tmp_path):
@@ -157,7 +193,7 @@ def test_a_resumed_run_goes_on_exactly(three_iterations, tmp_path):
     (learner,) = resumed.runner.learners.values()
     (reference,) = three_iterations.runner.learners.values()
     for key, value in reference.policy.state_dict().items():
-        assert th.equal(value, learner.policy.state_dict()[key]), key
+        assert th.equal(value.cpu(), learner.policy.state_dict()[key].cpu()), key
     assert [path.name for path in (tmp_path / "run" / "learners").iterdir()] == ["iteration_003.pt"]
 
 

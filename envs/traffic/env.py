@@ -262,6 +262,9 @@ class TrafficSignalEnv(ParallelEnv):
         self.render_mode = render_mode
         self.gui = gui or render_mode == "human"
         self.backend = backend if backend is not None else ("traci" if self.gui else "libsumo")
+        # libsumo holds one live simulation per process: sb3-sfgpi builds no copy of this env beside it
+        # (sb3_sfgpi.common.env_copies.ONE_PER_PROCESS)
+        self.metadata = {**self.metadata, "one_per_process": self.backend == "libsumo"}
         self._set_files(net_file, route_file, actuated_file, additional_files)
         self.sumo_args = tuple(str(a) for a in sumo_args)
         self.sumo_warnings = sumo_warnings

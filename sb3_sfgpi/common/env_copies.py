@@ -16,6 +16,9 @@ from typing import Any
 
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
 
+#: The key of an env's ``metadata`` that says its simulator allows one live instance per process (libsumo): its copies
+#: run in processes of their own, never beside it.
+ONE_PER_PROCESS = "one_per_process"
 #: What a copy returns for a step: observations, rewards, terminations, truncations, infos, agents still in it.
 StepResult = tuple[dict, dict, dict, dict, dict, list[str]]
 #: What a copy returns for a reset: observations, infos, agents in it.

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numbers
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,6 +17,9 @@ from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
 #: action masks (:mod:`~sb3_sfgpi.common.action_masks`), ``policy(observations, action_masks=masks)`` with the live
 #: agents' masks (every action allowed for an agent whose info has none).
 JointPolicy = Callable[..., dict[str, Any]]
+#: The actions of a batch of observations, each for its own weights: ``policy(observations, weights, action_masks)``
+#: with shapes ``(n, ...)``, ``(n, d)`` and ``(n, n_actions)`` or None (e.g. :meth:`GPIPolicy.predict_rows`).
+RowPolicy = Callable[[np.ndarray, np.ndarray, np.ndarray | None], np.ndarray]
 
 
 @dataclass
@@ -51,6 +54,71 @@ class EpisodeReturns:
         return self.undiscounted[agent].mean(axis=0)
 
 
+class _Episode:
+    """
+    One episode of a ParallelEnv under way: reset with its seed, stepped with the live agents' actions, its returns
+    added up.
+
+    :param env: the env (reset here)
+    :param seed: the seed of the reset
+    :param gamma: discount factor of the discounted returns
+    :param record_infos: keep the numeric entries of every agent's info after every step
+    """
+
+    def __init__(self, env: ParallelEnv, seed: int | None, gamma: float, record_infos: bool):
+        self.env, self.gamma, self.record_infos = env, gamma, record_infos
+        self.obs, self.infos = env.reset(seed=seed)
+        check_parallel_reset(env, 0, self.obs, env.possible_agents)
+        self.agents = list(env.agents)
+        dims = {agent: env.reward_space(agent).shape[0] for agent in self.agents}  # type: ignore[attr-defined]
+        self.discounted = {agent: np.zeros(dims[agent]) for agent in self.agents}
+        self.total = {agent: np.zeros(dims[agent]) for agent in self.agents}
+        self.last_infos = dict(self.infos)
+        self.trace: dict[str, dict[str, list[float]]] = {}
+        self.discount, self.steps = 1.0, 0
+
+    @property
+    def live(self) -> list[str]:
+        """The agents still in the episode (none: it is over)."""
+        return list(self.env.agents)
+
+    def observations(self) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
+        """The live agents' observations and action masks (None where no agent has one)."""
+        live = self.live
+        return {agent: self.obs[agent] for agent in live}, _live_masks(self.env, live, self.infos)
+
+    def step(self, actions: dict[str, Any]) -> None:
+        """Step the env with the live agents' actions and add their rewards."""
+        live = self.live
+        self.obs, rewards, terminations, truncations, self.infos = self.env.step(actions)
+        self.steps += 1
+        outcome = (self.obs, rewards, terminations, truncations)
+        check_parallel_step(self.env, 0, live, outcome, self.env.agents, self.steps)
+        for agent, reward in rewards.items():
+            self.discounted[agent] += self.discount * np.asarray(reward, dtype=np.float64)
+            self.total[agent] += reward
+        self.last_infos.update(self.infos)
+        if self.record_infos:
+            _record_step(self.trace, self.infos)
+        self.discount *= self.gamma
+
+
+def _returns_of(episodes: Sequence[_Episode]) -> EpisodeReturns:
+    """The returns of finished episodes, in their order."""
+    discounted: dict[str, list[np.ndarray]] = {}
+    undiscounted: dict[str, list[np.ndarray]] = {}
+    for episode in episodes:
+        for agent in episode.agents:
+            discounted.setdefault(agent, []).append(episode.discounted[agent])
+            undiscounted.setdefault(agent, []).append(episode.total[agent])
+    return EpisodeReturns(
+        {agent: np.array(values) for agent, values in discounted.items()},
+        {agent: np.array(values) for agent, values in undiscounted.items()},
+        [episode.last_infos for episode in episodes],
+        [episode.trace for episode in episodes if episode.record_infos],
+    )
+
+
 def run_episodes(
     env: ParallelEnv,
     policy: JointPolicy,
@@ -74,48 +142,68 @@ def run_episodes(
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be at least 1, got {n_episodes}")
-    discounted: dict[str, list[np.ndarray]] = {}
-    undiscounted: dict[str, list[np.ndarray]] = {}
-    final_infos = []
-    step_infos: list[dict[str, dict[str, list[float]]]] = []
-    for episode in range(n_episodes):
-        obs, infos = env.reset(seed=None if seed is None else seed + episode)
-        check_parallel_reset(env, 0, obs, env.possible_agents)
-        agents = list(env.agents)
-        dims = {agent: env.reward_space(agent).shape[0] for agent in agents}  # type: ignore[attr-defined]
-        disc = {agent: np.zeros(dims[agent]) for agent in agents}
-        total = {agent: np.zeros(dims[agent]) for agent in agents}
-        last_infos = dict(infos)
-        trace: dict[str, dict[str, list[float]]] = {}
-        discount = 1.0
-        step = 0
-        while env.agents:
-            live = list(env.agents)
-            masks = _live_masks(env, live, infos)
-            observations = {agent: obs[agent] for agent in live}
-            actions = policy(observations) if masks is None else policy(observations, action_masks=masks)
-            obs, rewards, terminations, truncations, infos = env.step(actions)
-            step += 1
-            check_parallel_step(env, 0, live, (obs, rewards, terminations, truncations), env.agents, step)
-            for agent, reward in rewards.items():
-                disc[agent] += discount * np.asarray(reward, dtype=np.float64)
-                total[agent] += reward
-            last_infos.update(infos)
-            if record_infos:
-                _record_step(trace, infos)
-            discount *= gamma
-        for agent in agents:
-            discounted.setdefault(agent, []).append(disc[agent])
-            undiscounted.setdefault(agent, []).append(total[agent])
-        final_infos.append(last_infos)
-        if record_infos:
-            step_infos.append(trace)
-    return EpisodeReturns(
-        {agent: np.array(values) for agent, values in discounted.items()},
-        {agent: np.array(values) for agent, values in undiscounted.items()},
-        final_infos,
-        step_infos,
-    )
+    episodes = []
+    for i in range(n_episodes):
+        episode = _Episode(env, None if seed is None else seed + i, gamma, record_infos)
+        while episode.live:
+            observations, masks = episode.observations()
+            episode.step(policy(observations) if masks is None else policy(observations, action_masks=masks))
+        episodes.append(episode)
+    return _returns_of(episodes)
+
+
+def run_lockstep(
+    envs: Sequence[ParallelEnv],
+    policy: RowPolicy,
+    weights: np.ndarray,
+    seeds: Sequence[int],
+    gamma: float,
+    per_result: int = 1,
+) -> list[EpisodeReturns]:
+    """
+    One episode on each env, all stepped together: at every step the live agents of every episode act by one call
+    of ``policy``, each for its episode's weights. Each episode is the one :func:`run_episodes` runs on its env with
+    its seed and a joint policy for its weights, where ``policy`` decides every row as it would alone.
+
+    :param envs: one env per episode (each is reset)
+    :param policy: the actions of a batch of observations, each for its own weights (:data:`RowPolicy`)
+    :param weights: each episode's weights, shape ``(n_episodes, d)``
+    :param seeds: each episode's seed
+    :param gamma: discount factor of the discounted returns
+    :param per_result: consecutive episodes whose returns form one result (the episodes of one weight)
+    :return: the returns of each ``per_result`` consecutive episodes
+    """
+    if not len(envs) == len(weights) == len(seeds):
+        raise ValueError(f"one env, weight and seed per episode: got {len(envs)}, {len(weights)} and {len(seeds)}")
+    if per_result < 1 or len(envs) % per_result:
+        raise ValueError(f"per_result must divide the {len(envs)} episodes, got {per_result}")
+    episodes = [_Episode(env, seed, gamma, False) for env, seed in zip(envs, seeds, strict=True)]
+    while running := [(k, episode) for k, episode in enumerate(episodes) if episode.live]:
+        stepped = [(k, *episode.observations()) for k, episode in running]
+        rows = [(j, agent) for j, (_, observations, _) in enumerate(stepped) for agent in observations]
+        obs = np.stack([stepped[j][1][agent] for j, agent in rows])
+        row_weights = np.asarray(weights)[[stepped[j][0] for j, _ in rows]]
+        actions = policy(obs, row_weights, _row_masks(episodes, stepped, rows)).tolist()
+        joint: list[dict[str, Any]] = [{} for _ in stepped]
+        for (j, agent), action in zip(rows, actions, strict=True):
+            joint[j][agent] = action
+        for (k, _, _), joint_actions in zip(stepped, joint, strict=True):
+            episodes[k].step(joint_actions)
+    return [_returns_of(episodes[i : i + per_result]) for i in range(0, len(episodes), per_result)]
+
+
+def _row_masks(
+    episodes: list[_Episode], stepped: list[tuple[int, dict, dict | None]], rows: list[tuple[int, str]]
+) -> np.ndarray | None:
+    """The action masks of a lockstep batch's rows (every action allowed where an episode has none), or None."""
+    if all(masks is None for _, _, masks in stepped):
+        return None
+
+    def mask(j: int, agent: str) -> np.ndarray:
+        k, _, masks = stepped[j]
+        return np.ones(episodes[k].env.action_space(agent).n, dtype=bool) if masks is None else masks[agent]
+
+    return np.stack([mask(j, agent) for j, agent in rows])
 
 
 def _live_masks(

@@ -25,6 +25,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.sfdqn.networks import SFNetwork, greedy_actions, scalarize
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 
@@ -32,44 +33,91 @@ from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 CONDITIONED_NET_ARCH = [256, 256, 256, 256]
 
 
+class ConditionedHead(nn.Module):
+    """
+    One estimate of ``ψ(s, ·, w)`` from the state's features: a feature layer for the state and one for the weight
+    (``net_arch[0]`` units each), their element-wise product, then ``net_arch[1:]`` with layer normalisation.
+
+    :param features_dim: Number of state features
+    :param reward_dim: Number of objectives ``d``
+    :param n_outputs: ``n_actions × d``
+    :param net_arch: Hidden layer sizes (at least one)
+    :param activation_fn: Activation function
+    """
+
+    def __init__(
+        self, features_dim: int, reward_dim: int, n_outputs: int, net_arch: list[int], activation_fn: type[nn.Module]
+    ):
+        super().__init__()
+        self.state_features = nn.Sequential(nn.Linear(features_dim, net_arch[0]), activation_fn())
+        self.weight_features = nn.Sequential(nn.Linear(reward_dim, net_arch[0]), activation_fn())
+        layers: list[nn.Module] = []
+        for n_in, n_out in itertools.pairwise(net_arch):
+            layers += [nn.Linear(n_in, n_out), nn.LayerNorm(n_out), activation_fn()]
+        layers.append(nn.Linear(net_arch[-1], n_outputs))
+        self.layers = nn.Sequential(*layers)
+
+    def forward(self, features: th.Tensor, weights: th.Tensor) -> th.Tensor:
+        """
+        :param features: shape ``(batch, features_dim)``
+        :param weights: shape ``(batch, d)``
+        :return: shape ``(batch, n_outputs)``
+        """
+        return self.layers(self.state_features(features) * self.weight_features(weights))
+
+
 class ConditionedSFNetwork(SFNetwork):
     """
-    ``ψ(s, ·, w)``: the state's features and the weight's features (one layer each, ``net_arch[0]`` units), their
-    element-wise product, then ``net_arch[1:]`` with layer normalisation, to ``n_actions × d`` outputs.
+    ``ψ(s, ·, w)`` from ``n_heads`` :class:`ConditionedHead` estimates learned side by side: it is their mean, and a
+    TD target bootstraps from the lowest of them (see :class:`ConditionedPolicy`).
 
     Its constructor's arguments are :class:`~sb3_sfgpi.sfdqn.networks.SFNetwork`'s (``net_arch``: at least one
-    layer, :data:`CONDITIONED_NET_ARCH` by default).
+    layer, :data:`CONDITIONED_NET_ARCH` by default) and ``n_heads``.
+
+    :param n_heads: Number of heads (at least one)
     """
 
     default_net_arch = tuple(CONDITIONED_NET_ARCH)
 
-    def __init__(self, *args: Any, **kwargs: Any):
+    def __init__(self, *args: Any, n_heads: int = 1, **kwargs: Any):
+        if n_heads < 1:
+            raise ValueError(f"a conditioned SF network needs at least one head, got n_heads={n_heads}")
+        self.n_heads = n_heads
         super().__init__(*args, **kwargs)
         self.register_buffer("member_weights", th.full((self.reward_dim,), 1.0 / self.reward_dim))
 
-    def _make_layers(self) -> nn.Sequential:
-        """The weight's and the state's feature layers (attributes), and the layers from their product to ``ψ``."""
+    def _make_layers(self) -> nn.ModuleList:  # type: ignore[override]
+        """The heads."""
         if not self.net_arch:
             raise ValueError("a conditioned SF network needs at least one hidden layer (net_arch)")
-        width, activation_fn = self.net_arch[0], self.activation_fn
-        self.state_features = nn.Sequential(nn.Linear(self.features_dim, width), activation_fn())
-        self.weight_features = nn.Sequential(nn.Linear(self.reward_dim, width), activation_fn())
-        layers: list[nn.Module] = []
-        for n_in, n_out in itertools.pairwise(self.net_arch):
-            layers += [nn.Linear(n_in, n_out), nn.LayerNorm(n_out), activation_fn()]
-        layers.append(nn.Linear(self.net_arch[-1], self.n_actions * self.reward_dim))
-        return nn.Sequential(*layers)
+        n_outputs = self.n_actions * self.reward_dim
+        return nn.ModuleList(
+            ConditionedHead(self.features_dim, self.reward_dim, n_outputs, self.net_arch, self.activation_fn)
+            for _ in range(self.n_heads)
+        )
+
+    def heads(self, obs: PyTorchObs, weights: th.Tensor | None = None) -> th.Tensor:
+        """
+        :param obs: Observation batch
+        :param weights: the weights to condition on, shape ``(d,)`` or ``(batch, d)``; None: ``member_weights``
+        :return: each head's ``ψ(s, ·, w)``, shape ``(n_heads, batch, n_actions, d)``
+        """
+        features = self.extract_features(obs, self.features_extractor)
+        weights = (self.member_weights if weights is None else weights).expand(len(features), -1)
+        psi = [head(features, weights) for head in self.sf_net]
+        return th.stack(psi).view(self.n_heads, -1, self.n_actions, self.reward_dim)
 
     def forward(self, obs: PyTorchObs, weights: th.Tensor | None = None) -> th.Tensor:
         """
         :param obs: Observation batch
         :param weights: the weights to condition on, shape ``(d,)`` or ``(batch, d)``; None: ``member_weights``
-        :return: ``ψ(s, ·, w)``, shape ``(batch, n_actions, d)``
+        :return: ``ψ(s, ·, w)``, the heads' mean, shape ``(batch, n_actions, d)``
         """
-        features = self.extract_features(obs, self.features_extractor)
-        weights = self.member_weights if weights is None else weights
-        mixed = self.state_features(features) * self.weight_features(weights.expand(len(features), -1))
-        return self.sf_net(mixed).view(-1, self.n_actions, self.reward_dim)
+        heads = self.heads(obs, weights)
+        return heads[0] if self.n_heads == 1 else heads.mean(dim=0)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "n_heads": self.n_heads}
 
     def bound_to(self, weights: np.ndarray) -> ConditionedSFNetwork:
         """
@@ -94,7 +142,8 @@ class ConditionedPolicy(SFDQNPolicy):
     Each gradient step samples one batch of transitions and learns it twice in one pass: for the policy's weights
     ``w`` and, where the support holds other weights, for support weights drawn uniformly (one per transition).
     The target of a transition for weight ``w'`` is ``r + γ (1 − terminated) ψ_target(s', a*, w')`` with
-    ``a* = argmax_a w' · ψ(s', a, w')`` (online network picks, target network evaluates).
+    ``a* = argmax_a w' · ψ(s', a, w')`` (online network picks, target network evaluates) and, with several heads,
+    ``ψ_target`` the target head of lowest ``w' · ψ`` there (an overestimate of one head is not bootstrapped).
 
     Acting for weights ``w`` is GPI over the support and ``w`` itself:
     ``argmax_a max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``: what the network learned for the other weights of
@@ -105,6 +154,7 @@ class ConditionedPolicy(SFDQNPolicy):
     :param lr_schedule: Learning rate schedule
     :param reward_dim: Number of objectives ``d``
     :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
+    :param n_heads: Number of heads of the network
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate (default: ``foreach``)
     :param kwargs: further :class:`~sb3_sfgpi.sfdqn.policies.SFDQNPolicy` arguments
     """
@@ -117,6 +167,7 @@ class ConditionedPolicy(SFDQNPolicy):
         self,
         *args: Any,
         net_arch: list[int] | None = None,
+        n_heads: int = 1,
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
@@ -126,9 +177,14 @@ class ConditionedPolicy(SFDQNPolicy):
         if not optimizer_kwargs.get("fused"):
             optimizer_kwargs.setdefault("foreach", True)
         net_arch = list(CONDITIONED_NET_ARCH if net_arch is None else net_arch)
+        self.n_heads = n_heads
         super().__init__(*args, net_arch=net_arch, optimizer_kwargs=optimizer_kwargs, **kwargs)
         #: the weights trained beside ``weights`` and acted over by GPI, shape ``(k, d)`` (set by SFDQN)
         self.support = self.weights.reshape(1, -1).clone()
+
+    @property
+    def sf_network_kwargs(self) -> dict[str, Any]:
+        return {"n_heads": self.n_heads}
 
     def set_support(self, support: np.ndarray) -> None:
         """
@@ -155,7 +211,7 @@ class ConditionedPolicy(SFDQNPolicy):
     ) -> float:
         """
         One gradient step on a sampled batch, for the policy's weights and for support weights (see the class), Huber
-        loss averaged over batch and objectives, gradient norm clipped.
+        loss averaged over batch and objectives and summed over heads, gradient norm clipped.
 
         :return: the loss before the step
         """
@@ -174,7 +230,12 @@ class ConditionedPolicy(SFDQNPolicy):
         rows = th.arange(len(weights), device=weights.device)
         with th.no_grad():
             next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
-            next_psi = self.sf_net_target(next_observations, weights)[rows, next_actions]
-            target_psi = twice(batch.rewards) + (1 - twice(batch.dones)) * gamma * next_psi
-        current_psi = self.sf_net(observations, weights)[rows, twice(batch.actions).long().flatten()]
-        return self.gradient_step(F.smooth_l1_loss(current_psi, target_psi), max_grad_norm)
+            target_heads = self.sf_net_target.heads(next_observations, weights)[:, rows, next_actions]
+            lowest = weighted_sum(target_heads, weights).argmin(dim=0)
+            target_psi = twice(batch.rewards) + (1 - twice(batch.dones)) * gamma * target_heads[lowest, rows]
+        current_heads = self.sf_net.heads(observations, weights)[:, rows, twice(batch.actions).long().flatten()]
+        loss = F.smooth_l1_loss(current_heads, target_psi.expand_as(current_heads), reduction="none")
+        return self.gradient_step(loss.mean(dim=(1, 2)).sum(), max_grad_norm)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "n_heads": self.n_heads}

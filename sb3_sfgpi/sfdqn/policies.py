@@ -52,6 +52,11 @@ class SFDQNPolicy(BasePolicy):
     #: the class of the SF networks :meth:`make_sf_net` builds
     sf_network_class: type[SFNetwork] = SFNetwork
 
+    @property
+    def sf_network_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of :attr:`sf_network_class` beside those every SF network takes."""
+        return {}
+
     def __init__(
         self,
         observation_space: spaces.Space,
@@ -102,6 +107,7 @@ class SFDQNPolicy(BasePolicy):
             net_arch=self.net_arch,
             activation_fn=self.activation_fn,
             normalize_images=self.normalize_images,
+            **self.sf_network_kwargs,
         ).to(self.device)
 
     def forward(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:

@@ -1,0 +1,89 @@
+"""GPI episodes for many weights stepped together (one batched decision a step) give exactly the returns of the same
+episodes run one after another: per-row weights in ``GPIPolicy.predict_rows``, ``run_lockstep``, and a run's test
+evaluation through ``MultiAgentRunner.lockstep``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from queue_lights import QueueLights
+
+from sb3_sfgpi import MASFOLS, EvaluationConfig, GPIPolicy, PadActions
+from sb3_sfgpi.common.rollouts import run_episodes, run_lockstep
+from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+
+TABULAR = dict(policy="TabularPolicy", learning_rate=0.2, gamma=0.9, learning_starts=0, train_freq=1, batch_size=16)
+WEIGHTS = np.random.default_rng(0).dirichlet(np.ones(2), 5)
+
+
+@pytest.fixture(scope="module")
+def padded_lights_set() -> GPIPolicy:
+    """Tables of two padded lights (action masks, random arrivals) trained for two weights, in one set."""
+    env = PadActions(QueueLights((2, 3)))
+    runner = MultiAgentRunner(env, default_learner_factory(**TABULAR, buffer_size=1_500), seed=0, gamma=0.9)
+    policy_set = GPIPolicy()
+    for iteration, w in enumerate([np.array([0.9, 0.1]), np.array([0.2, 0.8])]):
+        runner.start_iteration({agent: w for agent in runner.agents}, iteration, 1_500)
+        for _ in range(1_500):
+            runner.step()
+        runner.end_iteration()
+        for agent, learner in runner.learners.items():
+            policy_set.add(learner, weights=w, agent=agent)
+    return policy_set
+
+
+def test_rows_with_their_own_weights_get_the_actions_of_predict(padded_lights_set):
+    env = PadActions(QueueLights((2, 3)))
+    observations, infos = env.reset(seed=3)
+    obs = np.stack([observations[a] for a in env.agents] * len(WEIGHTS))
+    masks = np.stack([infos[a]["action_mask"] for a in env.agents] * len(WEIGHTS))
+    rows = np.repeat(WEIGHTS, len(env.agents), axis=0)
+    actions = padded_lights_set.predict_rows(obs, rows, masks)
+    for i, (o, w, m) in enumerate(zip(obs, rows, masks, strict=True)):
+        assert actions[i] == padded_lights_set.predict(o, w, action_masks=m)[0]
+    with pytest.raises(ValueError, match="one weight per observation"):
+        padded_lights_set.predict_rows(obs, rows[:-1])
+    with pytest.raises(ValueError, match="shape"):
+        padded_lights_set.predict_rows(obs, rows[0])
+
+
+def test_episodes_stepped_together_return_what_they_return_one_after_another(padded_lights_set):
+    env = padded_lights()
+    seeds = [100 * i for i in range(len(WEIGHTS))]
+    policies = [padded_lights_set.joint_policy(w) for w in WEIGHTS]
+    alone = [run_episodes(env, policy, 2, 0.9, seed=s) for policy, s in zip(policies, seeds, strict=True)]
+    envs = [padded_lights() for _ in range(2 * len(WEIGHTS))]
+    episode_seeds = [seed + episode for seed in seeds for episode in range(2)]
+    together = run_lockstep(envs, padded_lights_set.predict_rows, np.repeat(WEIGHTS, 2, 0), episode_seeds, 0.9, 2)
+    for one, other in zip(alone, together, strict=True):
+        for agent in env.possible_agents:
+            np.testing.assert_array_equal(other.discounted[agent], one.discounted[agent])
+            np.testing.assert_array_equal(other.undiscounted[agent], one.undiscounted[agent])
+        assert len(other.final_infos) == 2
+    assert len({float(r.discounted["light_0"][:, 0].sum()) for r in together}) > 1  # the weights act differently
+    with pytest.raises(ValueError, match="per_result"):
+        run_lockstep(envs, padded_lights_set.predict_rows, np.repeat(WEIGHTS, 2, 0), episode_seeds, 0.9, 3)
+
+
+def padded_lights() -> PadActions:
+    return PadActions(QueueLights((2, 3)))
+
+
+def _lights_run(together: bool) -> MASFOLS:
+    """Without ``env_fn`` the runner has no copies: the episodes run one after another."""
+    model = MASFOLS(
+        padded_lights(), policy="TabularPolicy", steps_per_iteration=600,
+        learner_kwargs=dict(learning_rate=0.2, gamma=0.9, learning_starts=0, batch_size=16),
+        evaluation=EvaluationConfig(WEIGHTS, episodes=2), seed=0, env_fn=padded_lights if together else None,
+    )  # fmt: skip
+    return model.learn(max_iterations=3)
+
+
+def test_a_runs_test_evaluation_steps_its_weights_together_and_training_goes_on_the_same():
+    together, alone = _lights_run(True), _lights_run(False)
+    assert len(together.runner._env_copies) == 2 * len(WEIGHTS) - 1 and not alone.runner._env_copies
+    for mine, other in zip(together.history, alone.history, strict=True):
+        assert mine["mean_return"] == other["mean_return"]
+    assert [info.value.tolist() for info in together.policy_set.infos] == [
+        info.value.tolist() for info in alone.policy_set.infos
+    ]
