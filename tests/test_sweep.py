@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
+import shutil
 import signal
+import socket
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 
@@ -134,3 +140,61 @@ def test_runs_asking_more_cpus_than_the_cluster_has_still_run(tmp_path, local_ra
     sweep.join(timeout=120)  # the run takes seconds
     assert not sweep.is_alive(), "a run asking 3 CPUs of a 2-CPU cluster was never scheduled"
     assert [o.status for o in outcomes] == ["finished"]
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.fixture
+def ray_head(tmp_path):
+    """
+    A Ray head node started as a user starts one (``ray start --head``) with token authentication (its token in the
+    ``~/.ray/auth_token`` of a home of its own, where Ray ≥ 2.59 keeps it), stopped afterwards (its process group
+    only: other tests' local Ray instances stay).
+    """
+    pytest.importorskip("ray")
+    home = tmp_path / "home"
+    (home / ".ray").mkdir(parents=True)
+    (home / ".ray" / "auth_token").write_text(secrets.token_hex(32))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")} | {"HOME": str(home)}
+    temp = tempfile.mkdtemp(prefix="r", dir="/tmp")  # short: Ray's socket paths have a length limit
+    port = _free_port()
+    log = tmp_path / "head.log"
+    command = [
+        "ray", "start", "--head", "--block", f"--port={port}", "--num-cpus=2", "--include-dashboard=false",
+        "--disable-usage-stats", f"--temp-dir={temp}", f"--ray-client-server-port={_free_port()}",
+    ]  # fmt: skip
+    with log.open("w") as output:
+        head = subprocess.Popen(command, env=env, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while "Ray runtime started" not in log.read_text():
+            assert head.poll() is None and time.monotonic() < deadline, log.read_text()[-2000:]
+            time.sleep(0.2)
+        yield f"127.0.0.1:{port}", env
+    finally:
+        os.killpg(head.pid, signal.SIGKILL)
+        head.wait()
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_a_sweep_joins_a_cluster_started_with_ray_start_and_says_what_to_do_without_its_token(tmp_path, ray_head):
+    address, env = ray_head
+
+    def sweep(out: str, home: dict) -> subprocess.CompletedProcess:
+        command = [
+            sys.executable, "-m", "sb3_sfgpi.cli", "sweep", "--domains", "four-room", "--algos", "random",
+            "--seeds", "0", "--out", str(tmp_path / out), "--address", address, "--no-progress", "--", *TINY,
+            "--iterations", "1",
+        ]  # fmt: skip
+        return subprocess.run(command, env=home, capture_output=True, text=True, timeout=300)
+
+    joined = sweep("a", env)
+    assert joined.returncode == 0, joined.stderr[-2000:]
+    assert "| four-room-random-s0 | finished | 1 | 1 |" in joined.stdout
+    refused = sweep("b", {**env, "HOME": str(tmp_path)})  # no token in this home
+    assert refused.returncode == 2
+    assert "asks for its token" in refused.stderr.strip().splitlines()[-1]
