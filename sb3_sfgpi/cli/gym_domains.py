@@ -76,7 +76,7 @@ def gym_preset(env_id: str) -> dict[str, Any] | None:
     _register_ids()
     if env_id not in gym.registry:
         return None
-    env = gym.make(env_id)
+    env = _made(env_id)
     try:
         reward_dim = env_reward_dim(env)
         tabular = _n_states(env.observation_space) <= MAX_TABULAR_STATES
@@ -98,6 +98,23 @@ def gym_preset(env_id: str) -> dict[str, Any] | None:
         "objectives": [f"objective {i}" for i in range(reward_dim)],
         "run_file_env_kwargs": [],  # a run file sets no env argument of an arbitrary env
     }
+
+
+def _made(env_id: str) -> gym.Env:
+    """
+    ``gym.make(env_id)``.
+
+    :raises UsageError: the env needs a package that is not installed (named, with the command that installs it)
+    """
+    try:
+        return gym.make(env_id)
+    except ImportError as error:
+        missing = error.name or str(error)
+        raise UsageError(
+            f"{env_id} needs {missing!r}, which is not installed: pip install {missing.replace('_', '-')}"
+        ) from None
+    except gym.error.DependencyNotInstalled as error:
+        raise UsageError(f"{env_id} needs a package that is not installed: {error}") from None
 
 
 def _n_states(observation_space: gym.Space) -> float:

@@ -365,7 +365,7 @@ def _ray(address: str | None, num_cpus: int | None) -> Any:
     try:
         import ray
     except ImportError as error:
-        raise ValueError("sweeps run on Ray: pip install 'sb3-sfgpi[ray]'") from error
+        raise ValueError("sweeps run on Ray: pip install 'sb3-sfgpi[sweep]'") from error
     if not ray.is_initialized():
         kwargs = {"num_cpus": num_cpus or os.cpu_count(), "include_dashboard": False} if local else {}
         try:

@@ -12,6 +12,7 @@ from pettingzoo.utils.wrappers import BaseParallelWrapper
 
 from sb3_sfgpi.common.action_masks import ACTION_MASK, info_mask
 from sb3_sfgpi.common.single_agent import SingleAgentParallelEnv
+from sb3_sfgpi.common.supersuit_wrappers import prepared
 
 #: Observation spaces SB3's replay buffers and policies take as they are.
 FLAT_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
@@ -55,7 +56,8 @@ class FlattenObservations(BaseParallelWrapper):
 def as_parallel_env(env: Any) -> Any:
     """
     ``env`` as the runner trains on it: a single-agent Gymnasium env becomes a
-    :class:`~sb3_sfgpi.common.single_agent.SingleAgentParallelEnv` (SFOLS is MA-SFOLS with one agent), and
+    :class:`~sb3_sfgpi.common.single_agent.SingleAgentParallelEnv` (SFOLS is MA-SFOLS with one agent), a ParallelEnv
+    wrapped with SuperSuit gets back what its wrappers took (:mod:`~sb3_sfgpi.common.supersuit_wrappers`), and
     :class:`FlattenObservations` wraps an env whose observation spaces are composite.
 
     :raises ValueError: a turn-based (AEC) env, or something that is neither a ParallelEnv nor a Gymnasium env
@@ -67,8 +69,16 @@ def as_parallel_env(env: Any) -> Any:
             f"{env} is a turn-based (AEC) env: MA-SFOLS steps agents that act together in a ParallelEnv and has no "
             "runner that takes turns; use the game's parallel version where it has one (docs: environments, MOMAland)"
         )
+    elif isinstance(env, gym.vector.VectorEnv) or hasattr(env, "num_envs"):
+        raise ValueError(
+            f"{env!r} is a vectorised env (SuperSuit's pettingzoo_env_to_vec_env_v1 / concat_vec_envs_v1, a Gymnasium "
+            "or SB3 VecEnv): MA-SFOLS takes the ParallelEnv itself (wrapped with SuperSuit's other wrappers as you "
+            "like) and steps copies of it together with n_envs=k"
+        )
     elif not hasattr(env, "possible_agents"):
         raise ValueError(f"{env!r} is neither a PettingZoo ParallelEnv nor a Gymnasium env")
+    else:
+        env = prepared(env)
     return FlattenObservations(env) if needs_flattening(env) else env
 
 
