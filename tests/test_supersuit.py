@@ -35,6 +35,34 @@ class BoxChain(ParallelChainEnv):
         return ({a: np.eye(5, dtype=np.float32)[s] for a, s in observations.items()}, *rest)
 
 
+class ImageChain(BoxChain):
+    """The chain seen as 8 × 8 RGB images (the state's row lit), for SuperSuit's image wrappers."""
+
+    def observation_space(self, agent: str) -> spaces.Box:
+        return spaces.Box(0, 255, (8, 8, 3), np.uint8)
+
+    def reset(self, seed=None, options=None):
+        observations, infos = super().reset(seed, options)
+        return {a: self._image(o) for a, o in observations.items()}, infos
+
+    def step(self, actions):
+        observations, *rest = super().step(actions)
+        return ({a: self._image(o) for a, o in observations.items()}, *rest)
+
+    @staticmethod
+    def _image(one_hot: np.ndarray) -> np.ndarray:
+        image = np.zeros((8, 8, 3), np.uint8)
+        image[int(one_hot.argmax())] = 255
+        return image
+
+
+def test_resize_shrinks_image_observations_and_runs():
+    env = as_parallel_env(ss.resize_v1(ImageChain(), 4, 4))
+    assert env.observation_space("agent_0").shape == (4, 4, 3) and env.reward_space("agent_0").shape == (2,)
+    returns = run_episodes(env, lambda obs: {agent: 0 for agent in obs}, 1, 0.9, seed=0)
+    assert returns.discounted["agent_0"].shape == (1, 2)
+
+
 @pytest.mark.parametrize(
     "wrap",
     [
