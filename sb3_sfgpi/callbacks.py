@@ -219,13 +219,21 @@ class OLSCallback(BaseCallback):
         learners = self.model.conditioned_learners
         if not learners:
             return
-        seed = derive_seed(self.model.seed, "revalue", self.iteration)
-        for i, info in enumerate(self.record.infos):
-            learner = learners.get(info.agent)  # type: ignore[arg-type]
-            if learner is None:
-                continue
+        seed, episodes = derive_seed(self.model.seed, "revalue", self.iteration), self.values.episodes
+        members = [i for i, info in enumerate(self.record.infos) if info.agent in learners]
+        for i in members:
+            learner = learners[self.record.infos[i].agent]  # type: ignore[index]
             cast(ConditionedSFNetwork, self.record.networks[i]).follow(learner.policy.sf_net)
-            returns = self.model.rollout(self.model.learner_policy(w=info.weights), self.values.episodes, seed)
+        weights = np.array([self.record.infos[i].weights for i in members])
+        seeds = [seed + episode for _ in members for episode in range(episodes)]
+        together = self.model.lockstep(self.model.learner_rows, np.repeat(weights, episodes, axis=0), seeds, episodes)
+        for k, i in enumerate(members):
+            info = self.record.infos[i]
+            returns = (
+                together[k]
+                if together is not None
+                else self.model.rollout(self.model.learner_policy(w=info.weights), episodes, seed)
+            )
             value = returns.mean_discounted_over(self.model.groups[info.agent])  # type: ignore[index]
             self.record.infos[i] = dataclasses.replace(info, value=value)
             self.schedule.add(value, info.weights)

@@ -440,7 +440,8 @@ class TestEvaluation:
         if self._lockstep is not None and not own:
             episodes = config.episodes
             seeds = [seed + episode for seed in self.seeds for episode in range(episodes)]
-            together = self._lockstep(acting.predict_rows, np.repeat(self.weights, episodes, axis=0), seeds, episodes)
+            weights = np.repeat(self.weights, episodes, axis=0)
+            together = self._lockstep(lambda o, w, m, _: acting.predict_rows(o, w, m), weights, seeds, episodes)
             if together is not None:
                 return together
         bar = tqdm(self.weights, desc="evaluating GPI", unit="w", leave=False, disable=not progress_bar)

@@ -24,7 +24,7 @@ from stable_baselines3.common.type_aliases import MaybeCallback, TrainFrequencyU
 from stable_baselines3.common.vec_env import VecEnv
 from tqdm.auto import tqdm
 
-from sb3_sfgpi.common.action_masks import ACTION_MASK, info_mask, stacked_masks
+from sb3_sfgpi.common.action_masks import ACTION_MASK, info_mask, masked, stacked_masks
 from sb3_sfgpi.common.agent_views import (
     AgentVecEnv,
     Rows,
@@ -38,7 +38,7 @@ from sb3_sfgpi.common.env_copies import ONE_PER_PROCESS, EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, RowPolicy, run_episodes, run_lockstep
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.common.weights import SAME_WEIGHT
+from sb3_sfgpi.common.weights import SAME_WEIGHT, validate_weights
 from sb3_sfgpi.ols import unique_points
 from sb3_sfgpi.run_settings import SHARED, SHARINGS
 from sb3_sfgpi.sfdqn import SFDQN
@@ -493,6 +493,24 @@ class MultiAgentRunner:
 
         return act
 
+    def learner_rows(
+        self, observations: np.ndarray, weights: np.ndarray, action_masks: np.ndarray | None, agents: list[str]
+    ) -> np.ndarray:
+        """
+        :data:`~sb3_sfgpi.common.rollouts.RowPolicy` of :meth:`learner_policy` with a weight per row: each agent's
+        learner acts greedily for its row's weights (validated as :meth:`~sb3_sfgpi.sfdqn.SFDQN.predict` does), by
+        GPI over its support where it is conditioned on the weights.
+        """
+        owner = {agent: name for name, group in self.groups.items() for agent in group}
+        actions = np.empty(len(observations), dtype=np.int64)
+        for name, learner in self.learners.items():
+            rows = [i for i, agent in enumerate(agents) if owner[agent] == name]
+            if rows:
+                row_weights = np.array([validate_weights(w, learner.reward_dim) for w in weights[rows]])
+                q_values, _ = learner.policy.q_values(observations[rows], row_weights)
+                actions[rows] = masked(q_values, None if action_masks is None else action_masks[rows]).argmax(axis=1)
+        return actions
+
     def rollout(self, policy: JointPolicy, n_episodes: int, seed: int) -> EpisodeReturns:
         """
         Monte-Carlo returns of a joint policy on the shared env (episode ``i`` resets with ``seed + i``).
@@ -518,6 +536,8 @@ class MultiAgentRunner:
         """
         if self._env_fn is None or self.env.metadata.get(ONE_PER_PROCESS):
             return None
+        if not seeds:
+            return []
         while len(self._env_copies) < len(seeds) - 1:
             self._env_copies.append(as_parallel_env(self._env_fn(**self._env_kwargs)))
         envs = [*self._env_copies[: len(seeds) - 1], self.env]

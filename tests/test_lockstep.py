@@ -1,11 +1,13 @@
-"""GPI episodes for many weights stepped together (one batched decision a step) give exactly the returns of the same
-episodes run one after another: per-row weights in ``GPIPolicy.predict_rows``, ``run_lockstep``, and a run's test
-evaluation through ``MultiAgentRunner.lockstep``."""
+"""Episodes for many weights stepped together (one batched decision a step) give exactly the returns of the same
+episodes run one after another: per-row weights in ``GPIPolicy.predict_rows`` and ``MultiAgentRunner.learner_rows``,
+``run_lockstep``, a run's test evaluation and the values of a conditioned learner's members through
+``MultiAgentRunner.lockstep``."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from momdp import Fig1MOMDP
 from queue_lights import QueueLights
 
 from sb3_sfgpi import MASFOLS, EvaluationConfig, GPIPolicy, PadActions
@@ -54,7 +56,11 @@ def test_episodes_stepped_together_return_what_they_return_one_after_another(pad
     alone = [run_episodes(env, policy, 2, 0.9, seed=s) for policy, s in zip(policies, seeds, strict=True)]
     envs = [padded_lights() for _ in range(2 * len(WEIGHTS))]
     episode_seeds = [seed + episode for seed in seeds for episode in range(2)]
-    together = run_lockstep(envs, padded_lights_set.predict_rows, np.repeat(WEIGHTS, 2, 0), episode_seeds, 0.9, 2)
+
+    def gpi(observations, weights, masks, agents):
+        return padded_lights_set.predict_rows(observations, weights, masks)
+
+    together = run_lockstep(envs, gpi, np.repeat(WEIGHTS, 2, 0), episode_seeds, 0.9, 2)
     for one, other in zip(alone, together, strict=True):
         for agent in env.possible_agents:
             np.testing.assert_array_equal(other.discounted[agent], one.discounted[agent])
@@ -62,7 +68,7 @@ def test_episodes_stepped_together_return_what_they_return_one_after_another(pad
         assert len(other.final_infos) == 2
     assert len({float(r.discounted["light_0"][:, 0].sum()) for r in together}) > 1  # the weights act differently
     with pytest.raises(ValueError, match="per_result"):
-        run_lockstep(envs, padded_lights_set.predict_rows, np.repeat(WEIGHTS, 2, 0), episode_seeds, 0.9, 3)
+        run_lockstep(envs, gpi, np.repeat(WEIGHTS, 2, 0), episode_seeds, 0.9, 3)
 
 
 def padded_lights() -> PadActions:
@@ -87,3 +93,27 @@ def test_a_runs_test_evaluation_steps_its_weights_together_and_training_goes_on_
     assert [info.value.tolist() for info in together.policy_set.infos] == [
         info.value.tolist() for info in alone.policy_set.infos
     ]
+
+
+def fig1() -> Fig1MOMDP:
+    return Fig1MOMDP(one_hot=True)
+
+
+def test_a_conditioned_learners_members_are_valued_together_as_one_after_another():
+    learner_kwargs = dict(
+        gamma=0.9, learning_rate=1e-3, learning_starts=100, batch_size=32, buffer_size=5_000,
+        target_update_interval=100, exploration_steps=600, policy_kwargs=dict(net_arch=[32, 32]),
+    )  # fmt: skip
+    model = MASFOLS(
+        fig1(), policy="ConditionedMlpPolicy", steps_per_iteration=300, learner_kwargs=learner_kwargs, seed=0,
+        env_fn=fig1,
+    )  # fmt: skip
+    model.learn(max_iterations=2)
+    runner = model.runner
+    assert runner._env_copies  # the members' values were estimated together
+    weights = np.array([info.weights for info in model.policy_set.infos] + [[0.5, 0.5], [0.9, 0.1]])
+    seeds = [7 + episode for _ in weights for episode in range(2)]
+    together = runner.lockstep(runner.learner_rows, np.repeat(weights, 2, axis=0), seeds, 2)
+    for w, returns in zip(weights, together, strict=True):
+        alone = runner.rollout(runner.learner_policy(w=w), 2, 7)
+        np.testing.assert_array_equal(returns.discounted["agent_0"], alone.discounted["agent_0"])

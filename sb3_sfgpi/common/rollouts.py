@@ -17,9 +17,9 @@ from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
 #: action masks (:mod:`~sb3_sfgpi.common.action_masks`), ``policy(observations, action_masks=masks)`` with the live
 #: agents' masks (every action allowed for an agent whose info has none).
 JointPolicy = Callable[..., dict[str, Any]]
-#: The actions of a batch of observations, each for its own weights: ``policy(observations, weights, action_masks)``
-#: with shapes ``(n, ...)``, ``(n, d)`` and ``(n, n_actions)`` or None (e.g. :meth:`GPIPolicy.predict_rows`).
-RowPolicy = Callable[[np.ndarray, np.ndarray, np.ndarray | None], np.ndarray]
+#: The actions of a batch of observations, each for its own weights: ``policy(observations, weights, action_masks,
+#: agents)`` with shapes ``(n, ...)``, ``(n, d)``, ``(n, n_actions)`` or None, and the agent of each row.
+RowPolicy = Callable[[np.ndarray, np.ndarray, np.ndarray | None, list[str]], np.ndarray]
 
 
 @dataclass
@@ -183,7 +183,8 @@ def run_lockstep(
         rows = [(j, agent) for j, (_, observations, _) in enumerate(stepped) for agent in observations]
         obs = np.stack([stepped[j][1][agent] for j, agent in rows])
         row_weights = np.asarray(weights)[[stepped[j][0] for j, _ in rows]]
-        actions = policy(obs, row_weights, _row_masks(episodes, stepped, rows)).tolist()
+        agents = [agent for _, agent in rows]
+        actions = policy(obs, row_weights, _row_masks(episodes, stepped, rows), agents).tolist()
         joint: list[dict[str, Any]] = [{} for _ in stepped]
         for (j, agent), action in zip(rows, actions, strict=True):
             joint[j][agent] = action

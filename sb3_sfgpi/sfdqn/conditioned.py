@@ -193,13 +193,22 @@ class ConditionedPolicy(SFDQNPolicy):
         self.support = th.as_tensor(np.asarray(support, dtype=np.float32).reshape(-1, self.reward_dim)).to(self.device)
 
     def action_values(self, obs: PyTorchObs, weights: th.Tensor) -> th.Tensor:
-        """GPI's action values for ``w`` over the support: ``max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``."""
+        """
+        GPI's action values for ``w`` over the support: ``max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``.
+
+        :param weights: ``w``, shape ``(d,)``, or ``(batch, d)``: each observation's own
+        """
         assert isinstance(obs, th.Tensor), "a conditioned network takes flat (Box) observations"
-        members = th.cat([self.support.to(weights.device), weights.reshape(1, -1)])
-        batch = len(obs)
-        obs_each = obs.repeat(len(members), *([1] * (obs.dim() - 1)))
-        psi = self.sf_net(obs_each, members.repeat_interleave(batch, dim=0))
-        return scalarize(psi, weights).view(len(members), batch, -1).max(dim=0).values
+        batch, support = len(obs), self.support.to(weights.device)
+        obs_each = obs.repeat(len(support) + 1, *([1] * (obs.dim() - 1)))
+        if weights.dim() == 1:
+            members = th.cat([support, weights.reshape(1, -1)]).repeat_interleave(batch, dim=0)
+            scalarized_by = weights
+        else:  # the support for every row, then each row's own weights; each row scalarised by its own
+            members = th.cat([support.repeat_interleave(batch, dim=0), weights])
+            scalarized_by = weights.repeat(len(support) + 1, 1)
+        psi = self.sf_net(obs_each, members)
+        return scalarize(psi, scalarized_by).view(len(support) + 1, batch, -1).max(dim=0).values
 
     def td_update(
         self,
