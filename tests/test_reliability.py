@@ -288,6 +288,24 @@ def test_a_full_disk_stops_training_in_one_line_and_the_checkpoint_survives(smal
     assert json.loads((out / "checkpoint.json").read_text())["iteration"] == 2
 
 
+def test_a_full_disk_under_tensorboards_writer_thread_is_one_error_naming_the_event_file(small_disk, capsys):
+    """TensorBoard's writer thread printed its traceback, then the training loop got an error naming no file."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    from sb3_sfgpi.cli.errors import report_writer_errors_once
+
+    report_writer_errors_once()
+    writer = SummaryWriter(str(small_disk / "tensorboard"), flush_secs=0)
+    subprocess.run(["dd", "if=/dev/zero", f"of={small_disk / 'filler'}", "bs=64k"], capture_output=True)  # ENOSPC
+    with pytest.raises(OSError, match="No space left") as error:
+        for step in range(10_000):  # the thread fails on a flush; a later write raises its error here
+            writer.add_scalar("x", float(step), step)
+            writer.flush()
+    (event_file,) = (small_disk / "tensorboard").glob("events.out.tfevents.*")
+    assert error.value.filename == str(event_file)
+    assert "Traceback" not in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("link", [".lock", "logs", "logs/progress.csv", "policy_set", "tensorboard"])
 def test_a_link_inside_a_run_directory_is_refused_before_anything_is_written(tmp_path, cli_exit, link):
     """A symbolic link inside a run made `--resume` write (or delete) where it pointed: now nothing is written."""

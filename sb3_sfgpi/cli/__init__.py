@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from sb3_sfgpi.cli import compare, evaluate, plot, sweep, train
-from sb3_sfgpi.cli.errors import TrainingStopped, UsageError
+from sb3_sfgpi.cli.errors import TrainingStopped, UsageError, report_writer_errors_once
 from sb3_sfgpi.cli.presets import DomainPreset, available_domains, load_domain
 
 COMMANDS = {"train": train, "evaluate": evaluate, "compare": compare, "plot": plot, "sweep": sweep}
@@ -34,6 +34,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sb3-sfgpi`` console script."""
     args = parse_args(argv)
+    report_writer_errors_once()
     try:
         return COMMANDS[args.command].run(args)
     except (UsageError, ValueError) as error:
