@@ -31,6 +31,7 @@ from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.serialization import jsonable
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
+from sb3_sfgpi.run_settings import GAMMA
 
 #: Runs a joint policy for some episodes from a seed (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.rollout`).
 Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
@@ -170,7 +171,7 @@ class ParallelEvaluator:
         env_fn: Callable[..., ParallelEnv],
         env_kwargs: Mapping[str, Any] | None = None,
         workers: int = 2,
-        gamma: float = 0.99,
+        gamma: float = GAMMA,
         threads: int = 1,
     ):
         if workers < 1:

@@ -29,7 +29,7 @@ from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory, repl
 from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_logger import run_logger
-from sb3_sfgpi.run_settings import SETTINGS, acts_by_own_policies
+from sb3_sfgpi.run_settings import GAMMA, SETTINGS, acts_by_own_policies
 from sb3_sfgpi.schedules import make_schedule
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
@@ -104,7 +104,7 @@ class MASFOLS:
         self.runner = MultiAgentRunner(
             env,
             seed=seed,
-            gamma=learner_kwargs.get("gamma", 0.99),
+            gamma=learner_kwargs.get("gamma", GAMMA),
             tensorboard_log=None if run_dir is None else str(RunDirectory(run_dir).tensorboard_dir),
             sharing=sharing,
             n_envs=n_envs,

@@ -8,6 +8,8 @@ Stable-Baselines3.
 from __future__ import annotations
 
 #: The name of the one learner all agents share (``sharing="shared"``).
+#: The discount factor of learners, runs and evaluations that are given none.
+GAMMA = 0.99
 SHARED = "shared"
 #: How agents get their learners: one each, or one for all (:class:`~sb3_sfgpi.multiagent.MultiAgentRunner`'s
 #: ``sharing``).

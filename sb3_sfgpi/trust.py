@@ -13,6 +13,8 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping
 from typing import Any
 
+from sb3_sfgpi.run_settings import GAMMA
+
 #: SFDQN arguments a run file may set (not ``tensorboard_log``, which writes files, nor classes or seeds).
 LEARNER_ARGUMENTS = frozenset(
     {
@@ -53,7 +55,7 @@ def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
     :raises ValueError: naming the argument
     """
     refuse_unlisted(kwargs, LEARNER_ARGUMENTS, f"{source}: learner argument", "the learners")
-    gamma = kwargs.get("gamma", 0.99)  # read as it is by evaluate and compare
+    gamma = kwargs.get("gamma", GAMMA)  # read as it is by evaluate and compare
     if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0.0 <= gamma <= 1.0:
         raise ValueError(f"{source}: learner argument 'gamma' must be a number in [0, 1], got {gamma!r}")
     policy_kwargs = kwargs.get("policy_kwargs", {})

@@ -26,7 +26,7 @@ from sb3_sfgpi.cli.values import check_weights
 from sb3_sfgpi.common.serialization import atomic_write_json
 from sb3_sfgpi.common.weights import format_weights, same_weight
 from sb3_sfgpi.run_directory import RunDirectory
-from sb3_sfgpi.run_settings import acts_by_own_policies
+from sb3_sfgpi.run_settings import GAMMA, acts_by_own_policies
 
 if TYPE_CHECKING:
     from sb3_sfgpi.common.rollouts import EpisodeReturns
@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     workers = preset.eval_workers if args.workers is None else args.workers
     if workers < 0:
         raise UsageError(f"--workers must be 0 or more, got {workers}")
-    gamma = config["learner_kwargs"].get("gamma", 0.99)
+    gamma = config["learner_kwargs"].get("gamma", GAMMA)
     compare: dict[str, Any] = {
         "format": COMPARE_FORMAT,
         "version": 1,

@@ -16,6 +16,7 @@ from sb3_sfgpi.cli.settings import MAX_COUNT
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_settings import GAMMA
 
 if TYPE_CHECKING:
     from sb3_sfgpi.gpi import GPIPolicy
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     w = None if args.w is None else validate_weights(args.w, policy_set.reward_dim, "--w")
     preset = load_domain(config["domain"])
     env = preset.build_env(preset.run_file_env(config["env_kwargs"], run_dir))
-    gamma = config["learner_kwargs"].get("gamma", 0.99)
+    gamma = config["learner_kwargs"].get("gamma", GAMMA)
     print(f"GPI over {len(policy_set)} policies ({which}), {args.episodes} episode(s) per weight")
     try:
         if w is None:

@@ -20,6 +20,7 @@ from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.common.reward_space import env_reward_dim
 from sb3_sfgpi.common.single_agent import SingleAgentParallelEnv
 from sb3_sfgpi.common.vec_env import import_registering_package
+from sb3_sfgpi.run_settings import GAMMA
 
 #: Packages whose import registers multi-objective ids in Gymnasium's registry (imported when installed).
 REGISTERING_PACKAGES = ("mo_gymnasium",)
@@ -29,7 +30,7 @@ MAX_TABULAR_STATES = 1_000_000
 TABULAR_LEARNER = {
     "policy": "TabularPolicy",
     "learning_rate": 0.1,
-    "gamma": 0.99,
+    "gamma": GAMMA,
     "buffer_size": 1_000_000,
     "learning_starts": 0,
     "train_freq": 1,

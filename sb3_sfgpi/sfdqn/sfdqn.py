@@ -22,6 +22,7 @@ from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.vec_env import make_mo_vec_env, vec_env_reward_dim, wrap_mo_env
 from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.run_settings import GAMMA
 from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.options import (
@@ -118,7 +119,7 @@ class SFDQN(OffPolicyAlgorithm):
         learning_starts: int = 100,
         batch_size: int = 32,
         tau: float = 1.0,
-        gamma: float = 0.99,
+        gamma: float = GAMMA,
         train_freq: int | tuple[int, str] = 4,
         gradient_steps: int = 1,
         replay_buffer_class: type[ReplayBuffer] | None = None,
