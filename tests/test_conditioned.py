@@ -23,8 +23,7 @@ SUPPORT = np.array([[0.8, 0.2], [0.3, 0.7]])
 GAMMA = 0.9
 
 
-@pytest.fixture(scope="module", params=[1, 2], ids=["one head", "two heads"])
-def trained(request) -> SFDQN:
+def _trained(n_heads: int) -> SFDQN:
     """One conditioned SFDQN trained for (0.8, 0.2) with the support above, on uniformly random transitions."""
     model = SFDQN(
         "ConditionedMlpPolicy",
@@ -39,12 +38,17 @@ def trained(request) -> SFDQN:
         exploration_initial_eps=1.0,
         exploration_final_eps=1.0,  # uniform behaviour: every pair is in the buffer
         buffer_size=5_000,
-        policy_kwargs=dict(net_arch=[64, 64], n_heads=request.param),
+        policy_kwargs=dict(net_arch=[64, 64], n_heads=n_heads),
         seed=0,
     )
     model.set_weight_support(SUPPORT)
     model.learn(4_000)
     return model
+
+
+@pytest.fixture(scope="module")
+def trained() -> SFDQN:
+    return _trained(n_heads=1)
 
 
 def _psi(model: SFDQN, state: int, w: np.ndarray) -> np.ndarray:
@@ -63,8 +67,26 @@ def test_learns_the_optimal_successor_features_of_every_support_weight(trained, 
 
 @pytest.mark.parametrize("w", [*SUPPORT.tolist(), [0.5, 0.5], [0.9, 0.1], [0.1, 0.9]])
 def test_gpi_over_the_support_acts_optimally(trained, w):
-    policy = policy_of(lambda s: trained.predict(observation(s, one_hot=True), deterministic=True, w=w)[0])
-    assert np.dot(w, policy_value(policy, GAMMA)) >= optimal_value(w, GAMMA) - 1e-6
+    assert _optimal_with_gpi(trained, w)
+
+
+def _optimal_with_gpi(model: SFDQN, w: list[float]) -> bool:
+    policy = policy_of(lambda s: model.predict(observation(s, one_hot=True), deterministic=True, w=w)[0])
+    return np.dot(w, policy_value(policy, GAMMA)) >= optimal_value(w, GAMMA) - 1e-6
+
+
+def test_two_heads_learn_the_optimal_successor_features_and_gpi_acts_optimally(tmp_path):
+    model = _trained(n_heads=2)  # one run, not a fixture per test worker: it is the slowest of the module
+    assert model.policy.sf_net.n_heads == 2
+    for w in SUPPORT:
+        exact = successor_features(optimal_policy(w, GAMMA), GAMMA)
+        for state in range(4):
+            np.testing.assert_allclose(_psi(model, state, w), exact[state], atol=0.5)
+    assert all(_optimal_with_gpi(model, w) for w in [*SUPPORT.tolist(), [0.5, 0.5], [0.9, 0.1], [0.1, 0.9]])
+    GPIPolicy([model]).save(tmp_path / "set")
+    loaded, obs = GPIPolicy.load(tmp_path / "set"), np.eye(5, dtype=np.float32)[:4]
+    assert loaded.networks[0].n_heads == 2
+    np.testing.assert_array_equal(loaded.q_values(obs, [0.3, 0.7]), GPIPolicy([model]).q_values(obs, [0.3, 0.7]))
 
 
 def test_members_of_the_set_are_bound_to_their_weights_and_saved_safely(trained, tmp_path):
