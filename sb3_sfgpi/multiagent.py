@@ -552,8 +552,14 @@ class MultiAgentRunner:
             self._monitors = {}
 
     def close(self) -> None:
-        """Stop the processes of the env's copies (``n_envs > 1``); the env itself is the caller's."""
+        """
+        Stop the processes of the env's copies (``n_envs > 1``) and close the copies :meth:`lockstep` built; the env
+        itself is the caller's.
+        """
         self.copies.close()
+        for env in self._env_copies:
+            env.close()
+        self._env_copies = []
 
     def learn(
         self, total_timesteps: int, callback: MaybeCallback = None, progress_bar: bool = False

@@ -88,6 +88,8 @@ def _lights_run(together: bool) -> MASFOLS:
 def test_a_runs_test_evaluation_steps_its_weights_together_and_training_goes_on_the_same():
     together, alone = _lights_run(True), _lights_run(False)
     assert len(together.runner._env_copies) == 2 * len(WEIGHTS) - 1 and not alone.runner._env_copies
+    together.runner.close()
+    assert not together.runner._env_copies
     for mine, other in zip(together.history, alone.history, strict=True):
         assert mine["mean_return"] == other["mean_return"]
     assert [info.value.tolist() for info in together.policy_set.infos] == [
