@@ -455,9 +455,11 @@ class MultiAgentRunner:
         return info
 
     def end_iteration(self) -> None:
-        """Settle the learners' optimism (:meth:`~sb3_sfgpi.sfdqn.SFDQN.settle`), close their callbacks and logs."""
+        """
+        Remove the learners' optimism (:meth:`~sb3_sfgpi.sfdqn.SFDQN.remove_optimism`), close their callbacks and logs.
+        """
         for name, callback in self._learner_callbacks.items():
-            self.learners[name].settle()
+            self.learners[name].remove_optimism()
             callback.on_rollout_end()
             callback.on_training_end()
             if self.learners[name]._episode_num > 0:

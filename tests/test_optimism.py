@@ -69,7 +69,7 @@ def test_optimism_finds_the_far_prize_that_epsilon_greedy_misses():
     assert greedy_return(corridor_learner(optimistic_init=0.0).learn(2_000)) == pytest.approx(0.5)
 
 
-def test_settle_leaves_untried_pairs_at_zero_and_the_tried_ones_at_the_planned_fixed_point():
+def test_remove_optimism_leaves_untried_pairs_at_zero_and_the_tried_ones_at_the_planned_fixed_point():
     model = corridor_learner(optimistic_init=6.0)
     model.learn(30)  # too short to try every pair: some keep the optimistic 6 until the end of learn()
     table = model.policy.sf_net.table.dense().reshape(-1, 2).copy()

@@ -36,7 +36,7 @@ from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
 
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 
-#: Most sweeps :meth:`SFDQN.settle` does (far more than planning needs to reach its tolerance at γ = 0.99).
+#: Most sweeps :meth:`SFDQN.remove_optimism` does (far more than planning needs to reach its tolerance at γ = 0.99).
 SETTLE_SWEEPS = 10_000
 
 
@@ -85,10 +85,10 @@ class SFDQN(OffPolicyAlgorithm):
     :param optimistic_init: optimistic initial values (``TabularPolicy`` with planning only; 0 for none): every
         entry of the table starts at this value, so the greedy behaviour tries the pairs it has not tried yet, and
         planning carries their promise to the states that lead to them (directed exploration, as R-max). At the end
-        of :meth:`learn`, :meth:`settle` removes it: the pairs never tried get 0 and the table is planned until it
-        converges, so the trained policy never counts on an action it has not tried. ``"rmax_X"``: ``X`` times the
-        largest reward one step can give (read from the bounds of the env's ``reward_space``), one setting for
-        every scale of rewards; the higher, the more of the state space is explored (docs: experiments/single_agent)
+        of :meth:`learn`, :meth:`remove_optimism` removes it: the pairs never tried get 0 and the table is planned
+        until it converges, so the trained policy never counts on an action it has not tried. ``"rmax_X"``: ``X``
+        times the largest reward one step can give (read from the bounds of the env's ``reward_space``), one setting
+        for every scale of rewards; the higher, the more of the state space is explored (docs: experiments/single_agent)
     :param stats_window_size: Window size for the rollout logging
     :param tensorboard_log: The log location for tensorboard (if None, no logging)
     :param policy_kwargs: Additional arguments to be passed to the policy on creation (``MlpPolicy``: ``net_arch``,
@@ -482,15 +482,15 @@ class SFDQN(OffPolicyAlgorithm):
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
         )
-        self.settle()
+        self.remove_optimism()
         return self
 
-    def settle(self) -> None:
+    def remove_optimism(self) -> None:
         """
         Remove the optimistic initial values (``optimistic_init``; nothing to do without): the pairs not in the
         replay buffer get ``ψ = 0``, and the recorded ones are planned until no entry moves by more than
         :data:`~sb3_sfgpi.sfdqn.planning.TOLERANCE` (at most :data:`SETTLE_SWEEPS` sweeps). Called at the end of
-        :meth:`learn`; a later :meth:`learn` goes on from the settled table, without optimism.
+        :meth:`learn`; a later :meth:`learn` goes on from that table, without optimism.
         """
         if self.optimistic_value:
             self.policy.plan(self.replay_buffer, self.gamma, SETTLE_SWEEPS, untried_value=0.0)  # type: ignore[attr-defined]
