@@ -67,6 +67,15 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def _gpu() -> str:
+    """The CUDA card the deep learners use by default (``device="auto"``), or none."""
+    import torch
+
+    if not torch.cuda.is_available():
+        return "none (the deep learners run on the CPU)"
+    return f"{torch.cuda.get_device_name(0)} (CUDA {torch.version.cuda}; the deep learners' device='auto')"
+
+
 def _versions() -> str:
     import numpy
     import scipy
@@ -95,6 +104,7 @@ def header(argv: list[str]) -> str:
         [
             f"- Machine: {_cpu_model()}, {os.cpu_count()} logical cores ({platform.system()} {platform.release()}), "
             f"load average at start {load}; torch limited to 1 thread",
+            f"- GPU: {_gpu()}",
             f"- Versions: {_versions()}",
             f"- Date: {datetime.date.today().isoformat()}",
             f"- Command: `python -m benchmarks{' ' + ' '.join(argv) if argv else ''}`",
