@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 from sb3_sfgpi.admission import Admission, Candidate
 from sb3_sfgpi.common.metrics import hypervolume
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
@@ -224,7 +224,7 @@ class OLSCallback(BaseCallback):
         for i in members:
             learner = learners[self.record.infos[i].agent]  # type: ignore[index]
             cast(ConditionedSFNetwork, self.record.networks[i]).follow(learner.policy.sf_net)
-        weights = np.array([self.record.infos[i].weights for i in members])
+        weights = np.array([validate_weights(self.record.infos[i].weights, self.model.reward_dim) for i in members])
         seeds = [seed + episode for _ in members for episode in range(episodes)]
         together = self.model.lockstep(self.model.learner_rows, np.repeat(weights, episodes, axis=0), seeds, episodes)
         for k, i in enumerate(members):

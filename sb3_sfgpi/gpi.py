@@ -83,7 +83,6 @@ class GPIPolicy:
         self.infos: list[PolicyInfo] = []
         self._stacked: Stacked | None = None
         self._weights_cache: tuple[Any, tuple[np.ndarray, th.Tensor, np.ndarray]] | None = None
-        self._rows_cache: tuple[Any, tuple[np.ndarray, th.Tensor, np.ndarray]] | None = None
         for model in models:
             self.add(model)
 
@@ -183,7 +182,7 @@ class GPIPolicy:
     def networks_changed(self) -> None:
         """Drop what the set derived from its networks (stacked copies): call it after changing them in place."""
         self._stacked = None
-        self._weights_cache = self._rows_cache = None
+        self._weights_cache = None
 
     def pop(self) -> PolicyInfo:
         """
@@ -350,11 +349,16 @@ class GPIPolicy:
         vectorized = is_vectorized_observation(array, space)
         return array.reshape((-1, *space.shape)), vectorized  # type: ignore[misc]
 
-    def _validated_weights(self, w: np.ndarray | list[float]) -> tuple[np.ndarray, th.Tensor, np.ndarray]:
+    def _validated_weights(
+        self, w: np.ndarray | list[float], per_row: bool = False
+    ) -> tuple[np.ndarray, th.Tensor, np.ndarray]:
         """
         ``w`` checked and normalised: float64 array, float32 tensor on the set's device, float32 array.
 
         The last weights are remembered, so acting many times for one ``w`` validates it once.
+
+        :param per_row: ``w`` holds one weight per observation, shape ``(batch, d)``: each row checked
+        :raises ValueError: bad weights (with ``per_row``, also weights that are not a 2-D array)
         """
         if isinstance(w, th.Tensor):  # one that requires grad too
             w = w.detach().cpu().numpy()
@@ -362,11 +366,16 @@ class GPIPolicy:
             raw = np.asarray(w, dtype=np.float64)
         except (TypeError, ValueError):
             raw = None
-        key = None if raw is None else (raw.shape, raw.tobytes())
+        key = None if raw is None else (per_row, raw.shape, raw.tobytes())
         cached = self._weights_cache
         if key is not None and cached is not None and cached[0] == key:
             return cached[1]
-        weights = validate_weights(w if raw is None else raw, self.reward_dim)
+        if not per_row:
+            weights = validate_weights(w if raw is None else raw, self.reward_dim)
+        elif raw is None or raw.ndim != 2:
+            raise ValueError(f"weights must have shape (batch, {self.reward_dim}), got {np.shape(w)}")
+        else:
+            weights = np.array([validate_weights(row, self.reward_dim) for row in raw]).reshape(raw.shape)
         # float32 like the networks: Q = ψ · w is computed in single precision on every path.
         result = (weights, th.as_tensor(weights, dtype=th.float32, device=self.device), weights.astype(np.float32))
         self._weights_cache = (key, result)
@@ -481,24 +490,12 @@ class GPIPolicy:
         :return: the actions, shape ``(batch,)``
         :raises ValueError: bad weights or masks, or a weight per observation missing
         """
-        rows = self._validated_rows(weights)
+        rows = self._validated_weights(weights, per_row=True)
         obs, _ = self._obs_to_array(observations)
         if len(rows[0]) != len(obs):
             raise ValueError(f"one weight per observation: got {len(rows[0])} weights for {len(obs)} observations")
         masks = checked_masks(action_masks, len(obs), self.action_space.n)
         return masked(self._gpi_q(obs, rows), masks).argmax(axis=1)
-
-    def _validated_rows(self, weights: np.ndarray) -> tuple[np.ndarray, th.Tensor, np.ndarray]:
-        """:meth:`_validated_weights` of each row of ``weights`` (the last rows remembered)."""
-        raw = np.asarray(weights, dtype=np.float64)
-        if raw.ndim != 2:
-            raise ValueError(f"weights must have shape (batch, {self.reward_dim}), got {raw.shape}")
-        key = (raw.shape, raw.tobytes())
-        if self._rows_cache is None or self._rows_cache[0] != key:
-            rows = np.array([validate_weights(w, self.reward_dim) for w in raw]).reshape(raw.shape)
-            tensor = th.as_tensor(rows, dtype=th.float32, device=self.device)
-            self._rows_cache = (key, (rows, tensor, rows.astype(np.float32)))
-        return self._rows_cache[1]
 
     def for_weights(self, w: np.ndarray | Sequence[float]) -> GPIPredictor:
         """

@@ -38,7 +38,7 @@ from sb3_sfgpi.common.env_copies import ONE_PER_PROCESS, EnvCopies, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, RowPolicy, run_episodes, run_lockstep
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.common.weights import SAME_WEIGHT, validate_weights
+from sb3_sfgpi.common.weights import SAME_WEIGHT
 from sb3_sfgpi.ols import unique_points
 from sb3_sfgpi.run_settings import SHARED, SHARINGS
 from sb3_sfgpi.sfdqn import SFDQN
@@ -158,6 +158,8 @@ class MultiAgentRunner:
         self.n_envs = n_envs
         #: learner name -> its slots: ``(copy, agent)``, copy by copy
         self.slots = {name: [(c, a) for c in range(n_envs) for a in agents] for name, agents in self.groups.items()}
+        #: agent -> the name of the learner it trains
+        self._learner_of = {agent: name for name, agents in self.groups.items() for agent in agents}
         self.views = {name: AgentVecEnv(env, agents, n_envs) for name, agents in self.groups.items()}
         self.copies: SingleCopy | EnvCopies = (
             SingleCopy(env) if n_envs == 1 else EnvCopies(env_fn, env_kwargs or {}, n_envs)  # type: ignore[arg-type]
@@ -480,12 +482,11 @@ class MultiAgentRunner:
         :param w: the weights every learner acts for (None: its own); a learner conditioned on the weights acts by
             GPI over its support
         """
-        owner = {agent: name for name, agents in self.groups.items() for agent in agents}
 
         def act(observations: dict[str, Any], action_masks: Mapping[str, Any] | None = None) -> dict[str, int]:
             chosen: dict[str, int] = {}
             for name in self.learner_names if learner is None else [learner]:
-                names = [a for a in observations if learner is not None or owner[a] == name]
+                names = [a for a in observations if learner is not None or self._learner_of[a] == name]
                 if names:
                     batch = np.stack([observations[a] for a in names])
                     masks = None if action_masks is None else np.stack([action_masks[a] for a in names])
@@ -500,16 +501,15 @@ class MultiAgentRunner:
     ) -> np.ndarray:
         """
         :data:`~sb3_sfgpi.common.rollouts.RowPolicy` of :meth:`learner_policy` with a weight per row: each agent's
-        learner acts greedily for its row's weights (validated as :meth:`~sb3_sfgpi.sfdqn.SFDQN.predict` does), by
-        GPI over its support where it is conditioned on the weights.
+        learner acts greedily for its row's weights, by GPI over its support where it is conditioned on the weights.
+        The weights are used as given: validate them once (:func:`~sb3_sfgpi.common.weights.validate_weights`, as
+        :meth:`~sb3_sfgpi.sfdqn.SFDQN.predict` does in every call), not at every step.
         """
-        owner = {agent: name for name, group in self.groups.items() for agent in group}
         actions = np.empty(len(observations), dtype=np.int64)
         for name, learner in self.learners.items():
-            rows = [i for i, agent in enumerate(agents) if owner[agent] == name]
+            rows = [i for i, agent in enumerate(agents) if self._learner_of[agent] == name]
             if rows:
-                row_weights = np.array([validate_weights(w, learner.reward_dim) for w in weights[rows]])
-                q_values, _ = learner.policy.q_values(observations[rows], row_weights)
+                q_values, _ = learner.policy.q_values(observations[rows], weights[rows])
                 actions[rows] = masked(q_values, None if action_masks is None else action_masks[rows]).argmax(axis=1)
         return actions
 

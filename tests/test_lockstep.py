@@ -12,6 +12,7 @@ from queue_lights import QueueLights
 
 from sb3_sfgpi import MASFOLS, EvaluationConfig, GPIPolicy, PadActions
 from sb3_sfgpi.common.rollouts import run_episodes, run_lockstep
+from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
 
 TABULAR = dict(policy="TabularPolicy", learning_rate=0.2, gamma=0.9, learning_starts=0, train_freq=1, batch_size=16)
@@ -113,7 +114,8 @@ def test_a_conditioned_learners_members_are_valued_together_as_one_after_another
     model.learn(max_iterations=2)
     runner = model.runner
     assert runner._env_copies  # the members' values were estimated together
-    weights = np.array([info.weights for info in model.policy_set.infos] + [[0.5, 0.5], [0.9, 0.1]])
+    given = [info.weights for info in model.policy_set.infos] + [[0.5, 0.5], [0.9, 0.1]]
+    weights = np.array([validate_weights(w, 2) for w in given])  # once, as the run does
     seeds = [7 + episode for _ in weights for episode in range(2)]
     together = runner.lockstep(runner.learner_rows, np.repeat(weights, 2, axis=0), seeds, 2)
     for w, returns in zip(weights, together, strict=True):

@@ -234,12 +234,10 @@ def _checked_out(path: Path) -> Path:
 
 
 def _created(run_dir: RunDirectory) -> RunDirectory:
-    """The run directory, created if needed; a one-line error where it cannot be."""
-    too_long = [part for part in run_dir.path.parts if len(part.encode()) > MAX_NAME_BYTES]
-    if too_long:
-        raise UsageError(
-            f"--out {run_dir.path}: a name in it is longer than {MAX_NAME_BYTES} bytes ({too_long[0][:20]}...)"
-        )
+    """
+    The run directory (its names checked by :func:`_checked_out`), created if needed; a one-line error where it
+    cannot be.
+    """
     try:
         run_dir.path.mkdir(parents=True, exist_ok=True)
     except OSError as error:

@@ -200,15 +200,11 @@ class ConditionedPolicy(SFDQNPolicy):
         """
         assert isinstance(obs, th.Tensor), "a conditioned network takes flat (Box) observations"
         batch, support = len(obs), self.support.to(weights.device)
+        rows = weights.expand(batch, -1)  # (d,) or (batch, d): each row's own
         obs_each = obs.repeat(len(support) + 1, *([1] * (obs.dim() - 1)))
-        if weights.dim() == 1:
-            members = th.cat([support, weights.reshape(1, -1)]).repeat_interleave(batch, dim=0)
-            scalarized_by = weights
-        else:  # the support for every row, then each row's own weights; each row scalarised by its own
-            members = th.cat([support.repeat_interleave(batch, dim=0), weights])
-            scalarized_by = weights.repeat(len(support) + 1, 1)
+        members = th.cat([support.repeat_interleave(batch, dim=0), rows])  # every support weight, then each row's
         psi = self.sf_net(obs_each, members)
-        return scalarize(psi, scalarized_by).view(len(support) + 1, batch, -1).max(dim=0).values
+        return scalarize(psi, rows.repeat(len(support) + 1, 1)).view(len(support) + 1, batch, -1).max(dim=0).values
 
     def td_update(
         self,
