@@ -125,6 +125,7 @@ class OLSCallback(BaseCallback):
         self._iteration_bar: Any = None
         self._tests: TestEvaluation | None = None
         self._policy_dir: RunDirectory | None = self.run_dir
+        self._staged_policy_set: Path | None = None  # the manifest of Π as the evaluation workers load it
         self._started = False
         self._pending: AgentWeights | None = None  # the next weights, when a call of learn() stopped at its cap
 
@@ -281,7 +282,7 @@ class OLSCallback(BaseCallback):
         """GPI over Π on the test weights: the iteration's summary row (logged) with the per-weight details."""
         assert self._tests is not None
         eval_start = time.time()
-        policy_dir = None if self._policy_dir is None else self._policy_dir.policy_set_dir
+        policy_dir = self._staged_policy_set
         metrics, details = self._tests.run(self.policy_set, policy_dir, self.model.gamma, self.progress_bar)
         reference = self.evaluation.hypervolume_reference
         summary = {
@@ -311,10 +312,11 @@ class OLSCallback(BaseCallback):
 
     # --- run directory --------------------------------------------------------------------------------------------
     def _save_policy_set(self) -> None:
+        """Stage Π in the run directory (its checkpoint commits it), or a temporary one for evaluation workers."""
         if self._policy_dir is None and self.evaluation.workers > 0:
             self._policy_dir = RunDirectory.temporary()  # the workers load Π from disk
         if self._policy_dir is not None and len(self.record):
-            self._policy_dir.save_policy_set(self.record)
+            self._staged_policy_set = self._policy_dir.stage_policy_set(self.record, self.iteration + 1)
 
     def _write_checkpoint(self, next_weights: AgentWeights | None) -> None:
         if self.run_dir is None:
@@ -338,6 +340,7 @@ class OLSCallback(BaseCallback):
     def _restore(self) -> AgentWeights | None:
         """Restore the state of the last finished iteration; return the next weights (None if the schedule ended)."""
         assert self.run_dir is not None
+        self.run_dir.commit_policy_set()  # a set the checkpoint named but a killed writer did not commit
         state = self.run_dir.read_checkpoint()
         self.schedule.load_state_dict(state["schedule"])
         self.record = self.run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)

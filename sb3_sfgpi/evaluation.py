@@ -30,7 +30,8 @@ from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, RowPolicy, ru
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.serialization import jsonable
 from sb3_sfgpi.common.weights import validate_weights
-from sb3_sfgpi.gpi import MANIFEST, GPIPolicy
+from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.policy_set_files import manifest_path
 from sb3_sfgpi.run_settings import GAMMA
 
 #: Runs a joint policy for some episodes from a seed (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.rollout`).
@@ -55,7 +56,8 @@ class EvaluationJob:
     :param weights: preference weights GPI acts for; None: no policy, every agent sends no action (for envs whose
         own controller then acts, such as the traffic env's fixed-time and actuated programs)
     :param n_episodes: number of episodes
-    :param policy_dir: the policy-set directory to act with (required with ``weights``; a worker loads it)
+    :param policy_dir: the policy set to act with, its directory or manifest (required with ``weights``; a worker
+        loads it)
     :param own_policies: each agent acts by GPI over the policies it learned itself only
     :param ccs_only: act by GPI over the policies of the set's CCS only (:meth:`~sb3_sfgpi.gpi.GPIPolicy.ccs_policies`)
     :param env_overrides: keyword arguments of the env replacing the evaluator's for this job
@@ -136,7 +138,7 @@ def _worker_env(overrides: tuple[tuple[str, Any], ...]) -> ParallelEnv:
 
 
 def _worker_policy_set(policy_dir: str) -> GPIPolicy:
-    manifest = (Path(policy_dir) / MANIFEST).read_bytes()  # the manifest names every file of the set
+    manifest = manifest_path(Path(policy_dir)).read_bytes()  # the manifest names every file of the set
     cached = _worker["sets"].get(policy_dir)
     if cached is None or cached[0] != manifest:
         cached = (manifest, GPIPolicy.load(policy_dir))

@@ -507,15 +507,20 @@ class GPIPolicy:
         """
         return GPIPredictor(self, w)
 
-    def save(self, path: str | Path) -> None:
+    def save(self, path: str | Path, manifest: str = MANIFEST, stamp: int | None = None) -> None:
         """
         Write the set as a policy-set directory (see the module docstring).
 
         :param path: the directory (created if needed)
+        :param manifest: the manifest's file name (a run directory stages a set under another name until its
+            checkpoint commits it)
+        :param stamp: a number in every policy file's name (``policy_000.0002.pt``), so that a set whose manifest
+            names other files is not written over
         """
         self._check_saveable()
-        entries = [info.to_dict(f"policy_{i:03d}.pt") for i, info in enumerate(self.infos)]
-        write_policy_set(Path(path), self.networks, entries, self._first())
+        suffix = "" if stamp is None else f".{stamp:04d}"
+        entries = [info.to_dict(f"policy_{i:03d}{suffix}.pt") for i, info in enumerate(self.infos)]
+        write_policy_set(Path(path), self.networks, entries, self._first(), manifest)
 
     def _check_saveable(self) -> None:
         """Refuse to save what :meth:`load` would refuse: non-finite SFs, values or weights, or an empty set."""
@@ -534,7 +539,7 @@ class GPIPolicy:
         """
         Read a policy-set directory written by :meth:`save`.
 
-        :param path: the directory
+        :param path: the directory, or a manifest file in it
         :param device: where to put the networks, as in the constructor; the files are read on the CPU, so a set
             saved on one device loads on any other
         :param retired: also the policies that validation retired from Π (a run's whole record, to resume it);

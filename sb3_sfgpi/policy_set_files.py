@@ -73,7 +73,11 @@ class PolicyInfo:
 
 
 def write_policy_set(
-    directory: Path, networks: Sequence[nn.Module], entries: Sequence[dict[str, Any]], first: Any
+    directory: Path,
+    networks: Sequence[nn.Module],
+    entries: Sequence[dict[str, Any]],
+    first: Any,
+    manifest: str = MANIFEST,
 ) -> None:
     """
     Write the policy files, then the manifest.
@@ -81,6 +85,7 @@ def write_policy_set(
     :param networks: the SF networks, one per policy
     :param entries: the manifest's entry of each (``"file"`` names its file)
     :param first: the first policy's network (its spaces, objectives and architecture describe the set)
+    :param manifest: the manifest's file name
     """
     directory.mkdir(parents=True, exist_ok=True)
     for net, entry in zip(networks, entries, strict=True):
@@ -88,7 +93,7 @@ def write_policy_set(
         th.save(file_state(net), buffer)
         atomic_write_bytes(directory / entry["file"], buffer.getvalue())
     atomic_write_json(
-        directory / MANIFEST,
+        directory / manifest,
         {
             "format": FORMAT,
             "version": VERSION,
@@ -101,15 +106,23 @@ def write_policy_set(
     )
 
 
-def read_policy_set(directory: Path, retired: bool) -> list[tuple[nn.Module, dict[str, Any]]]:
-    """
-    The networks of a policy-set directory with their manifest entries, checked.
+def manifest_path(path: Path) -> Path:
+    """The manifest of a policy set given as its directory (its ``manifest.json``) or as a manifest file."""
+    return path if path.is_file() else path / MANIFEST
 
+
+def read_policy_set(path: Path, retired: bool) -> list[tuple[nn.Module, dict[str, Any]]]:
+    """
+    The networks of a policy set with their manifest entries, checked.
+
+    :param path: the set's directory (its ``manifest.json``) or a manifest file (its policy files beside it)
     :param retired: also the policies that validation retired (default of the caller: Π's members only)
     :raises ~sb3_sfgpi.policy_files.CorruptPolicySetError: a missing, truncated, inconsistent or foreign directory
     """
+    manifest_file = manifest_path(path)
+    directory = manifest_file.parent
     try:
-        manifest = _read_manifest(directory)
+        manifest = _read_manifest(manifest_file)
         observation_space = space_from_dict(manifest["observation_space"])
         action_space = space_from_dict(manifest["action_space"])
         if not isinstance(action_space, spaces.Discrete):
@@ -135,10 +148,10 @@ def read_policy_set(directory: Path, retired: bool) -> list[tuple[nn.Module, dic
         raise CorruptPolicySetError(f"cannot load the policy set in {directory}: {error}") from error
 
 
-def _read_manifest(directory: Path) -> dict[str, Any]:
-    manifest = read_json(directory / MANIFEST, "policy-set manifest")
+def _read_manifest(path: Path) -> dict[str, Any]:
+    manifest = read_json(path, "policy-set manifest")
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-        raise ValueError(f"{directory / MANIFEST} is not an sb3-sfgpi policy-set manifest")
+        raise ValueError(f"{path} is not an sb3-sfgpi policy-set manifest")
     if type(manifest.get("version")) is not int or manifest["version"] != VERSION:  # not true, not 1.0
         raise ValueError(f"unsupported policy-set version {manifest.get('version')!r} (expected {VERSION})")
     if not isinstance(manifest["network"], dict) or not isinstance(manifest["policies"], list):

@@ -4,7 +4,9 @@ Layout (no other module spells these names)::
 
     run.json           what the run is: its settings (and, from the CLI, the domain and env arguments), with the
                        format's name and version (:data:`RUN_FORMAT`, :data:`RUN_VERSION`)
-    policy_set/        Π in the policy-set format of :class:`~sb3_sfgpi.gpi.GPIPolicy`
+    policy_set/        Π in the policy-set format of :class:`~sb3_sfgpi.gpi.GPIPolicy` (``manifest.json``), as of
+                       the checkpoint; during an iteration also the set it is making (``manifest.next.json``, its
+                       files stamped with the iteration), which its checkpoint commits
     evaluation.json    per iteration: the summary row, the weights trained and, per test weight and agent, the
                        vector returns of GPI (discounted and not) and the last infos
     evaluation.csv     per iteration: the summary row
@@ -19,15 +21,18 @@ Layout (no other module spells these names)::
     compare.json       what ``sb3-sfgpi compare`` wrote (by default)
     .lock              the writer's lock (:meth:`RunDirectory.lock`): who writes the run now (pid, host, command)
 
-Every file is written atomically. After an iteration, Π is written first (evaluation workers load it), then the
-evaluation files, and ``checkpoint.json`` last: it is what a resume trusts, so policies and rows
-beyond its counts (left by an iteration that was killed) are ignored, and so are experience files beyond its
-iteration.
+Every file is written atomically. After an iteration, Π is staged first (evaluation workers load it), then the
+evaluation files, and ``checkpoint.json`` last: it is what a resume trusts, so rows beyond its counts (left by an
+iteration that was killed) are ignored, and so are experience files beyond its iteration. The checkpoint names its
+set by the digest of the staged manifest; only then does the staged manifest become ``manifest.json`` and the files
+no manifest names go. A reader of the run therefore loads the set of the checkpoint, whenever the writer was killed:
+files are never written over, and a staged set that no checkpoint named is never read.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import shutil
@@ -51,6 +56,8 @@ if TYPE_CHECKING:
 #: The file of a policy-set directory that describes the set and names its other files (see
 #: :mod:`sb3_sfgpi.policy_set_files`).
 MANIFEST = "manifest.json"
+#: The manifest of the set an iteration stages in ``policy_set/`` until its checkpoint commits it.
+STAGED_MANIFEST = "manifest.next.json"
 
 #: The format of ``run.json`` and of the files beside it, and its version: a run of another version is refused.
 RUN_FORMAT = "sb3-sfgpi/run"
@@ -111,6 +118,30 @@ def _summary_row(row: Any, number: int) -> bool:
 
 def _string(value: Any) -> bool:
     return isinstance(value, str)
+
+
+def _hexadecimal(value: str) -> bool:
+    return all(c in "0123456789abcdef" for c in value)
+
+
+def _digest(path: Path) -> str:
+    """The SHA-256 digest of a file (a manifest: it names every file of its set)."""
+    digest = hashlib.sha256()
+    with path.open("rb") as file:
+        for chunk in iter(lambda: file.read(2**20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _listed_files(manifest: Path) -> set[str] | None:
+    """The policy files a manifest names: none if it is missing, None if it is unreadable."""
+    if not manifest.is_file():
+        return set()
+    try:
+        entries = read_json(manifest, "policy-set manifest")["policies"]
+        return {entry["file"] for entry in entries if isinstance(entry["file"], str)}
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 #: What the known settings of ``run.json`` must be (others are kept as they are).
@@ -238,7 +269,26 @@ class RunDirectory:
         return (self.path / self.EVALUATION_CSV).is_file()
 
     def has_policy_set(self) -> bool:
-        return (self.policy_set_dir / MANIFEST).is_file()
+        """Whether the last checkpoint (or, in a directory without one, a save) left a policy set."""
+        return self.policy_set_manifest() is not None
+
+    def policy_set_manifest(self) -> Path | None:
+        """
+        The manifest of the checkpoint's Π: the committed one, or the staged one the checkpoint named if the writer
+        stopped before committing it (None: no set yet).
+
+        :raises ValueError: neither manifest is the one the checkpoint names
+        """
+        committed, staged = self.policy_set_dir / MANIFEST, self.policy_set_dir / STAGED_MANIFEST
+        if not self.has_checkpoint():
+            return committed if committed.is_file() else None
+        named = self.read_checkpoint().get("policy_set")
+        for manifest in (committed, staged):
+            if named is not None and manifest.is_file() and _digest(manifest) == named:
+                return manifest
+        if named is None and not committed.is_file():
+            return None
+        raise ValueError(f"{self.policy_set_dir} does not hold the policy set that {self.CHECKPOINT} names")
 
     # --- run.json ---------------------------------------------------------------------------------------------
     def read_config(self, required: Sequence[str] = ()) -> dict[str, Any]:
@@ -275,8 +325,40 @@ class RunDirectory:
         atomic_write_json(self.path / self.RUN, {"format": RUN_FORMAT, "version": RUN_VERSION, **config})
 
     # --- Π ----------------------------------------------------------------------------------------------------
-    def save_policy_set(self, policy_set: GPIPolicy) -> None:
-        policy_set.save(self.policy_set_dir)
+    def stage_policy_set(self, policy_set: GPIPolicy, iteration: int) -> Path:
+        """
+        Write the set an iteration makes beside the committed one, for :meth:`write_iteration` to commit.
+
+        :param iteration: the iteration (stamped in its files' names, so no committed file is written over)
+        :return: its manifest (what evaluation workers load)
+        """
+        policy_set.save(self.policy_set_dir, manifest=STAGED_MANIFEST, stamp=iteration)
+        self._remove_unlisted_policy_files()
+        return self.policy_set_dir / STAGED_MANIFEST
+
+    def commit_policy_set(self) -> None:
+        """
+        Make the staged set the run's set if the checkpoint names it, else drop it; then remove the files no
+        manifest names (after a writer was killed, before a resumed run goes on).
+        """
+        staged = self.policy_set_dir / STAGED_MANIFEST
+        if staged.is_file():
+            named = self.read_checkpoint().get("policy_set") if self.has_checkpoint() else None
+            if named is not None and _digest(staged) == named:
+                staged.replace(self.policy_set_dir / MANIFEST)
+            else:
+                staged.unlink()
+        self._remove_unlisted_policy_files()
+
+    def _remove_unlisted_policy_files(self) -> None:
+        """Delete the policy files that neither the committed nor the staged manifest names (none if one is corrupt)."""
+        listed = [_listed_files(self.policy_set_dir / name) for name in (MANIFEST, STAGED_MANIFEST)]
+        if any(names is None for names in listed):
+            return
+        keep = set().union(*listed)  # type: ignore[arg-type]
+        for path in self.policy_set_dir.glob("policy_*.pt"):
+            if path.name not in keep:
+                path.unlink()
 
     def load_policy_set(
         self,
@@ -295,11 +377,12 @@ class RunDirectory:
             members, what GPI acts over
         :raises ValueError: no policy set, or fewer policies than ``n_policies``
         """
-        if not self.has_policy_set():
+        manifest = self.policy_set_manifest()
+        if manifest is None:
             raise ValueError(f"{self.path} has no policy set yet")
         from sb3_sfgpi.gpi import GPIPolicy  # torch and SB3: only where Π is read, not where a run is looked at
 
-        saved = GPIPolicy.load(self.policy_set_dir, device=device, retired=True)
+        saved = GPIPolicy.load(manifest, device=device, retired=True)
         if n_policies is not None and n_policies > len(saved):
             raise ValueError(f"{self.policy_set_dir} holds {len(saved)} policies, the checkpoint {n_policies}")
         policy_set = saved if n_policies is None else saved.subset(range(n_policies))
@@ -308,7 +391,13 @@ class RunDirectory:
         return policy_set if record else policy_set.members()
 
     def write_iteration(self, history: Sequence[dict[str, Any]], checkpoint: dict[str, Any]) -> None:
-        """The evaluation files of every iteration so far, then ``checkpoint.json`` (last: a resume trusts it)."""
+        """
+        The evaluation files of every iteration so far, then ``checkpoint.json`` (a resume trusts it), naming the
+        staged policy set (or else the committed one), which it then commits.
+        """
+        staged, committed = self.policy_set_dir / STAGED_MANIFEST, self.policy_set_dir / MANIFEST
+        named = staged if staged.is_file() else committed
+        checkpoint = {**checkpoint, "policy_set": _digest(named) if named.is_file() else None}
         atomic_write_json(self.path / self.EVALUATION_JSON, list(history))
         out = io.StringIO()
         writer = csv.DictWriter(out, fieldnames=SUMMARY_FIELDS, extrasaction="ignore")
@@ -316,6 +405,7 @@ class RunDirectory:
         writer.writerows(history)
         atomic_write_bytes(self.path / self.EVALUATION_CSV, out.getvalue().encode())
         atomic_write_json(self.path / self.CHECKPOINT, checkpoint)
+        self.commit_policy_set()
 
     def read_checkpoint(self) -> dict[str, Any]:
         """
@@ -333,6 +423,9 @@ class RunDirectory:
                 raise ValueError(f"checkpoint {path}: {key!r} must be a non-negative integer, got {value!r}")
         if not isinstance(state.get("schedule"), dict) or not isinstance(state["schedule"].get("ols"), dict):
             raise ValueError(f"checkpoint {path}: no 'schedule' state (written by another version of sb3-sfgpi?)")
+        named = state.get("policy_set")
+        if named is not None and not (isinstance(named, str) and len(named) == 64 and _hexadecimal(named)):
+            raise ValueError(f"checkpoint {path}: 'policy_set' must be null or a SHA-256 digest, got {named!r}")
         if not isinstance(state.get("learners", False), bool):
             raise ValueError(f"checkpoint {path}: 'learners' must be true or false, got {state['learners']!r}")
         next_weights = state.get("next_weights")

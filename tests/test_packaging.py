@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import importlib.util
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -22,11 +23,21 @@ ROOT = Path(__file__).resolve().parents[1]
 SOURCES = {"sb3_sfgpi": "sb3_sfgpi", "envs": "sfgpi_envs"}
 
 
+#: What the wheel is built from: a copy of these, so that setuptools' ``build/`` never lands in the source tree (whose
+#: stale files it would put in the next wheel).
+PACKAGED = ("pyproject.toml", "README.md", "sb3_sfgpi", "envs")
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> zipfile.ZipFile:
-    out = tmp_path_factory.mktemp("wheel")
+    source, out = tmp_path_factory.mktemp("source"), tmp_path_factory.mktemp("wheel")
+    for name in PACKAGED:
+        if (ROOT / name).is_dir():
+            shutil.copytree(ROOT / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy2(ROOT / name, source / name)
     command = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(out)]
-    subprocess.run([*command, str(ROOT)], check=True, capture_output=True, timeout=300)
+    subprocess.run([*command, str(source)], check=True, capture_output=True, timeout=300)
     (path,) = out.glob("sb3_sfgpi-*.whl")
     return zipfile.ZipFile(path)
 

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import torch as th
 from conftest import StopAfter
 from gymnasium import spaces
 from momdp import N_ACTIONS, N_STATES, REWARD_DIM, REWARDS, TERMINAL, Fig1MOMDP, optimal_value, successor_features
@@ -13,8 +14,11 @@ from parallel_chain import CHAIN_LEARNER, ParallelChainEnv
 
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.evaluation import EvaluationConfig
+from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
+from sb3_sfgpi.policy_files import file_state
 from sb3_sfgpi.pooling import PooledReplay
+from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.sfdqn import TabularSFNetwork
 from sb3_sfgpi.sfdqn.planning import Experience
 
@@ -190,3 +194,35 @@ def test_pooled_replay_is_refused_with_several_agents_or_without_tables():
         MASFOLS(ParallelChainEnv(2), learner_kwargs=learner, pool_replay=True)
     with pytest.raises(ValueError, match="must be 'TabularPolicy'"):
         MASFOLS(Fig1MOMDP(one_hot=True), policy="MlpPolicy", learner_kwargs={"learning_starts": 0}, pool_replay=True)
+
+
+def test_a_run_killed_before_its_checkpoint_leaves_on_disk_the_set_of_its_checkpoint(tmp_path, monkeypatch):
+    resource_gathering_run(tmp_path).learn(max_iterations=1)
+    after_one = GPIPolicy.load(tmp_path / "policy_set", retired=True)
+
+    class Killed(BaseException):
+        pass
+
+    def killed(self, history, checkpoint):
+        raise Killed
+
+    with monkeypatch.context() as patch:  # iteration 2 re-plans every table, stages Π and dies before its checkpoint
+        patch.setattr(RunDirectory, "write_iteration", killed)
+        with pytest.raises(Killed):
+            MASFOLS.load(tmp_path, mo.make("resource-gathering-v0")).learn(max_iterations=2)
+    staged = GPIPolicy.load(tmp_path / "policy_set" / "manifest.next.json", retired=True)
+    assert not all(same_tables(staged.subset([i]), after_one.subset([i])) for i in range(len(after_one)))
+
+    state = RunDirectory(tmp_path).read_checkpoint()
+    for loaded in (  # what a user, `evaluate` and a resume read: the checkpoint's
+        GPIPolicy.load(tmp_path / "policy_set", retired=True),
+        RunDirectory(tmp_path).load_policy_set(state["n_policies"], iteration=state["iteration"], record=True),
+    ):
+        assert same_tables(loaded, after_one)
+
+
+def same_tables(one: GPIPolicy, other: GPIPolicy) -> bool:
+    states = [[file_state(net) for net in policy_set.networks] for policy_set in (one, other)]
+    return len(states[0]) == len(states[1]) and all(
+        a.keys() == b.keys() and all(th.equal(a[k], b[k]) for k in a) for a, b in zip(*states, strict=True)
+    )

@@ -15,6 +15,7 @@ import sys
 import tempfile
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from packaging.version import Version
@@ -104,23 +105,36 @@ def local_ray():
     ray.shutdown()
 
 
-def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(tmp_path, local_ray):
+@pytest.mark.parametrize("shared_filesystem", [True, False])
+def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(tmp_path, local_ray, shared_filesystem):
     specs = grid(["four-room"], ["ma-sfols", "random"], [0], options=[*TINY, "--iterations", "3"])
     target = specs[0]
     uninterrupted = train_run(target, tmp_path / "uninterrupted")  # the same run in this process, never killed
     out = tmp_path / "sweep"
     outcomes: list = []
-    sweep = threading.Thread(target=lambda: outcomes.extend(run_sweep(specs, out, progress_bar=False)))
+    sweep = threading.Thread(
+        target=lambda: outcomes.extend(run_sweep(specs, out, progress_bar=False, shared_filesystem=shared_filesystem))
+    )
     sweep.start()
     run_dir = out / target.run_name
-    while not (run_dir / "checkpoint.json").is_file():  # the target finished its first iteration of 3
+    while not (run_dir / "checkpoint.json").is_file():  # the target finished its first iteration of 3 (and sent it)
         assert sweep.is_alive(), "the sweep ended before the run could be killed"
         time.sleep(0.02)
-    pid = json.loads((run_dir / "sweep.json").read_text())["attempts"][-1]["pid"]
-    os.kill(pid, signal.SIGKILL)
+    attempt = json.loads((run_dir / "sweep.json").read_text())["attempts"][-1]
+    os.kill(attempt["pid"], signal.SIGKILL)
+    if not shared_filesystem:  # the run worked in a folder of its node: the node is lost with it
+        assert out not in Path(attempt["dir"]).parents
+        shutil.rmtree(Path(attempt["dir"]).parent)
     sweep.join(timeout=600)
     assert [o.status for o in outcomes] == ["finished"] * 2
     assert [o.attempts for o in outcomes] == [2, 1]
+    assert [o.run_dir for o in outcomes] == [out / spec.run_name for spec in specs]
+    if not shared_filesystem:  # the nodes' folders are gone once their runs came home
+        assert not any(
+            Path(a["dir"]).exists()
+            for o in outcomes
+            for a in json.loads((o.run_dir / "sweep.json").read_text())["attempts"]
+        )
     killed = json.loads((run_dir / "evaluation.json").read_text())
     reference = json.loads((uninterrupted.run_dir / "evaluation.json").read_text())
     strip = [

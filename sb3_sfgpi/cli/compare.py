@@ -141,9 +141,10 @@ def _planned(
             raise UsageError(f"--w must have length {n_objectives} (one weight per objective), got {len(w)}")
 
     def job(weights: Any, source: RunDirectory | None = None, **kwargs: Any) -> EvaluationJob:
-        if source is not None and not source.has_policy_set():
+        manifest = None if source is None else source.policy_set_manifest()
+        if source is not None and manifest is None:
             raise UsageError(f"{source} has no policy set yet")
-        policy_dir = None if source is None else str(source.policy_set_dir)
+        policy_dir = None if manifest is None else str(manifest)
         weights = None if weights is None else tuple(weights)
         return EvaluationJob(args.seed, weights, args.episodes, policy_dir, record_infos=True, **kwargs)
 

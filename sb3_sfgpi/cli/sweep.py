@@ -34,6 +34,11 @@ def add_parser(sub: Any) -> None:
     sweep.add_argument(
         "--address", help="join this Ray cluster (default: RAY_ADDRESS, else a local Ray with --num-cpus CPUs)"
     )
+    sweep.add_argument(
+        "--no-shared-filesystem", action="store_true", help="the cluster's nodes do not all see --out: each run works "
+        "in its node's temporary directory and sends its run directory to --out on this machine after every checkpoint"
+        " (a retried run continues from the last one that arrived)",
+    )  # fmt: skip
     sweep.add_argument("--num-cpus", type=int, help="CPUs of the local Ray (default: the machine's)")
     sweep.add_argument("--cpus-per-run", type=float, default=1.0, help="CPUs reserved for each run (default 1)")
     sweep.add_argument("--max-retries", type=int, default=3, help="tries after a run's worker died (default 3)")
@@ -58,8 +63,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         specs = grid(args.domains, args.algos, args.seeds, args.w, options)
     outcomes = run_sweep(
-        specs, args.out, args.address, args.num_cpus, args.cpus_per_run, args.max_retries, not args.no_progress
-    )
+        specs, args.out, args.address, args.num_cpus, args.cpus_per_run, args.max_retries, not args.no_progress,
+        shared_filesystem=not args.no_shared_filesystem,
+    )  # fmt: skip
     print(_table(outcomes))
     interrupted = sum(outcome.status == "interrupted" for outcome in outcomes)
     if interrupted:

@@ -2,12 +2,13 @@
 
 A sweep is a list of :class:`RunSpec` (domain, algorithm, seed, weights, further ``train`` options). Every run is
 one Ray task that runs ``sb3-sfgpi train`` in its worker process into ``out/<run name>``: its output goes to
-``train.log`` there, and ``sweep.json`` there records the run's spec, its attempts (process, host, start) and, once it
-ended, that it finished. A task whose worker dies (killed, out of memory, a node lost) is retried by Ray and
-continues from the run's last checkpoint (``train --resume``), so its results are those of an uninterrupted run;
+``train.log`` there, and ``sweep.json`` there records the run's spec, its attempts (process, host, folder, start)
+and, once it ended, that it finished. A task whose worker dies (killed, out of memory, a node lost) is retried by
+Ray and continues from the run's last checkpoint (``train --resume``), so its results are those of an uninterrupted run;
 a sweep run again skips the runs that finished with the same spec. Ray is started locally with the machine's
 cores unless an address is given (or ``RAY_ADDRESS`` is set): then the runs go to that cluster, whose nodes must
-all see ``out`` (a shared filesystem) and have this package installed.
+have this package installed and either all see ``out`` (a shared filesystem) or, with ``shared_filesystem=False``,
+send their run directories home (:mod:`sb3_sfgpi.cli.run_shipping`).
 """
 
 from __future__ import annotations
@@ -21,12 +22,14 @@ import socket
 import threading
 import unicodedata
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from tqdm.auto import tqdm
 
+from sb3_sfgpi.cli.ray_cluster import joined_ray
+from sb3_sfgpi.cli.run_shipping import node_run_directory, start_store
 from sb3_sfgpi.common.serialization import atomic_write_json
 from sb3_sfgpi.common.weights import format_weights
 from sb3_sfgpi.run_directory import RunDirectory
@@ -223,7 +226,7 @@ def _train_run(spec: RunSpec, run_dir: Path) -> RunOutcome:
     from sb3_sfgpi.cli import main
 
     record = _read_record(run_dir)
-    attempt = {"pid": os.getpid(), "host": socket.gethostname(), "started": _now()}
+    attempt = {"pid": os.getpid(), "host": socket.gethostname(), "dir": str(run_dir), "started": _now()}
     record = {"spec": spec.to_json(), "attempts": [*record.get("attempts", []), attempt], "finished": False}
     _write_record(run_dir, record)
     argv = spec.train_argv(run_dir, resume=RunDirectory(run_dir).has_checkpoint())
@@ -241,6 +244,18 @@ def _train_run(spec: RunSpec, run_dir: Path) -> RunOutcome:
     return _outcome(spec, run_dir, "finished")
 
 
+def train_run_shipped(spec: RunSpec, store: Any, out: Path) -> RunOutcome:
+    """
+    :func:`train_run` in a folder of this node, its run directory sent home to ``store`` (see
+    :mod:`sb3_sfgpi.cli.run_shipping`).
+
+    :param out: the sweep's directory on the driver's machine (where the outcome says the run is)
+    """
+    with node_run_directory(store, spec.run_name) as work:
+        outcome = train_run(spec, work)
+    return replace(outcome, run_dir=out / spec.run_name)
+
+
 def run_sweep(
     specs: Iterable[RunSpec],
     out: str | Path,
@@ -249,6 +264,7 @@ def run_sweep(
     cpus_per_run: float = 1.0,
     max_retries: int = 3,
     progress_bar: bool = True,
+    shared_filesystem: bool = True,
 ) -> list[RunOutcome]:
     """
     Run every spec as a Ray task (those that finished with the same spec before are skipped).
@@ -261,6 +277,9 @@ def run_sweep(
         ever)
     :param max_retries: how often a run whose worker died, or that stopped with an error, is tried again
     :param progress_bar: a bar over the runs
+    :param shared_filesystem: every node sees ``out``; False: each run works in its node's temporary directory and
+        sends its run directory to ``out`` on this machine after every checkpoint and at its end (a retried run
+        continues from the last checkpoint that arrived)
     :return: per run, in the order given, how it ended
     :raises ValueError: two runs with the same name
     """
@@ -276,7 +295,7 @@ def run_sweep(
     pending = [spec for spec in specs if spec.run_name not in outcomes]
     bar = tqdm(total=len(specs), initial=len(outcomes), desc="sweep", unit="run", disable=not progress_bar)
     if pending:
-        _run_pending(pending, out, outcomes, bar, address, num_cpus, cpus_per_run, max_retries)
+        _run_pending(pending, out, outcomes, bar, address, num_cpus, cpus_per_run, max_retries, shared_filesystem)
     bar.close()
     return [outcomes[name] for name in names]
 
@@ -290,6 +309,7 @@ def _run_pending(
     num_cpus: int | None,
     cpus_per_run: float,
     max_retries: int,
+    shared_filesystem: bool,
 ) -> None:
     """
     The runs not finished before, as Ray tasks, their outcomes recorded as they end. Ctrl-C at any moment, Ray's
@@ -300,14 +320,17 @@ def _run_pending(
     ray, refs = None, {}
     with _ctrl_c_flag() as interrupted:
         try:
-            ray = _ray(address, num_cpus)
+            ray = joined_ray(address, num_cpus)
             if interrupted.is_set():
                 raise KeyboardInterrupt
             cpus = min(cpus_per_run, ray.cluster_resources().get("CPU", cpus_per_run))
-            task = ray.remote(train_run).options(
-                num_cpus=cpus, max_retries=max_retries, retry_exceptions=[RuntimeError]
-            )
-            refs = {task.remote(spec, out / spec.run_name): spec for spec in pending}
+            options = dict(num_cpus=cpus, max_retries=max_retries, retry_exceptions=[RuntimeError])
+            if shared_filesystem:
+                task = ray.remote(train_run).options(**options)
+                refs = {task.remote(spec, out / spec.run_name): spec for spec in pending}
+            else:
+                task, store = ray.remote(train_run_shipped).options(**options), start_store(ray, out)
+                refs = {task.remote(spec, store, out): spec for spec in pending}
             while refs:
                 if interrupted.is_set():
                     raise KeyboardInterrupt
@@ -355,53 +378,6 @@ def _interrupted(ray: Any, refs: dict[Any, RunSpec], outcomes: dict[str, RunOutc
                 ray.get(ref)
     for spec in refs.values():
         outcomes[spec.run_name] = _outcome(spec, out / spec.run_name, "interrupted")
-
-
-def _ray(address: str | None, num_cpus: int | None) -> Any:
-    """Ray, initialised: the given or ``RAY_ADDRESS``'s cluster, or a local one with ``num_cpus`` CPUs."""
-    local = address is None and not os.environ.get("RAY_ADDRESS")
-    if not local:
-        _authenticate_with_token()  # before Ray is imported: it reads RAY_AUTH_MODE then
-    try:
-        import ray
-    except ImportError as error:
-        raise ValueError("sweeps run on Ray: pip install 'sb3-sfgpi[sweep]'") from error
-    if not ray.is_initialized():
-        kwargs = {"num_cpus": num_cpus or os.cpu_count(), "include_dashboard": False} if local else {}
-        try:
-            ray.init(address=address, log_to_driver=False, **kwargs)
-        except (ConnectionError, RuntimeError) as error:  # RuntimeError: token authentication without a token
-            if local:
-                raise
-            raise ValueError(_join_advice(address or os.environ["RAY_ADDRESS"], error)) from None
-    return ray
-
-
-def _authenticate_with_token() -> None:
-    """
-    Join a cluster with token authentication where a token is at hand (``RAY_AUTH_TOKEN``, the file
-    ``RAY_AUTH_TOKEN_PATH`` names, or ``~/.ray/auth_token``, where ``ray start`` keeps it): Ray ≥ 2.59 turns it on for
-    clusters started with ``ray start``, but a driver that joins by address uses it only with ``RAY_AUTH_MODE=token``,
-    read when Ray is imported. A ``RAY_AUTH_MODE`` the user set is left as it is.
-    """
-    if "RAY_AUTH_MODE" in os.environ:
-        return
-    path = os.environ.get("RAY_AUTH_TOKEN_PATH")
-    token_file = Path(path).expanduser() if path else Path.home() / ".ray" / "auth_token"
-    if os.environ.get("RAY_AUTH_TOKEN") or token_file.is_file():
-        os.environ["RAY_AUTH_MODE"] = "token"
-
-
-def _join_advice(address: str, error: BaseException) -> str:
-    """One line: why joining the cluster at ``address`` failed and what to do."""
-    cause = " ".join(str(error).split())
-    mode = os.environ.get("RAY_AUTH_MODE", "unset")
-    return (
-        f"cannot join the Ray cluster at {address} ({cause}; RAY_AUTH_MODE {mode}). A cluster started with `ray start` "
-        "on Ray >= 2.59 asks for its token: copy the head node's ~/.ray/auth_token to this machine's ~/.ray/ (or set "
-        "RAY_AUTH_TOKEN or RAY_AUTH_TOKEN_PATH). Otherwise check that the address is the one `ray start --head` "
-        "printed and that its port is reachable from here"
-    )
 
 
 def _collect(ray: Any, ref: Any, spec: RunSpec, run_dir: Path) -> RunOutcome:
