@@ -58,7 +58,7 @@ def damaged_copy(run_dir: Path, tmp_path: Path, file: str, key: str | None, valu
 
 
 RUN_KEYS = ["domain", "env_kwargs", "learner_kwargs", "test_weights", "gpi_set", "seed", "version", None]
-CHECKPOINT_KEYS = ["iteration", "timesteps", "n_policies", "schedule", "next_weights", None]
+CHECKPOINT_KEYS = ["iteration", "timesteps", "n_policies", "schedule", "next_weights", "policy_set", None]
 
 
 @FUZZ
@@ -72,6 +72,7 @@ CHECKPOINT_KEYS = ["iteration", "timesteps", "n_policies", "schedule", "next_wei
 )
 @example(file_and_key=("checkpoint.json", "next_weights"), value={"": {}})  # found by CI's run
 @example(file_and_key=("run.json", "env_kwargs"), value={"": None})
+@example(file_and_key=("checkpoint.json", "policy_set"), value="0" * 64)  # a set that is not there
 def test_damaged_run_files_give_one_line_errors(run_dir, tmp_path, capsys, file_and_key, value):
     file, key = file_and_key
     copy = damaged_copy(run_dir, tmp_path, file, key, value)
