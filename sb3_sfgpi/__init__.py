@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # type checkers and Sphinx see the names as imported
     from sb3_sfgpi.multiagent import MultiAgentRunner
     from sb3_sfgpi.ols import OLS
     from sb3_sfgpi.run_directory import RunDirectory
+    from sb3_sfgpi.run_settings import RunSettings
     from sb3_sfgpi.schedules import FixedSchedule, OLSSchedule, RandomSchedule
     from sb3_sfgpi.sfdqn import SFDQN
 
@@ -44,6 +45,7 @@ __all__ = [
     "PadActions",
     "RandomSchedule",
     "RunDirectory",
+    "RunSettings",
     "SwapTerminationsTruncations",
     "ValueEstimation",
     "__version__",
@@ -69,6 +71,7 @@ _MODULES = {
     "MultiAgentRunner": "sb3_sfgpi.multiagent",
     "OLS": "sb3_sfgpi.ols",
     "RunDirectory": "sb3_sfgpi.run_directory",
+    "RunSettings": "sb3_sfgpi.run_settings",
     "FixedSchedule": "sb3_sfgpi.schedules",
     "OLSSchedule": "sb3_sfgpi.schedules",
     "RandomSchedule": "sb3_sfgpi.schedules",

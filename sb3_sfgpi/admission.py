@@ -17,6 +17,7 @@ import numpy as np
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.run_settings import RunSettings
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.validation import Scored, ValidationScorer
 
@@ -56,10 +57,10 @@ class Admission:
 
     def __init__(
         self,
-        validation_weights: int = 0,
+        validation_weights: int = RunSettings.validation_weights,
         episodes: int = 1,
-        prune: bool = False,
-        together: bool = False,
+        prune: bool = RunSettings.prune,
+        together: bool = RunSettings.admit_together,
         verbose: int = 0,
     ):
         if isinstance(validation_weights, bool) or not isinstance(validation_weights, int) or validation_weights < 0:

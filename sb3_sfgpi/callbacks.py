@@ -30,7 +30,7 @@ from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
-from sb3_sfgpi.run_settings import VALUE_MODES
+from sb3_sfgpi.run_settings import VALUE_MODES, RunSettings
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
@@ -50,8 +50,8 @@ class ValueEstimation:
     :param episodes: episodes of the estimate (per policy in ``"shared"`` mode)
     """
 
-    mode: str = "joint"
-    episodes: int = 1
+    mode: str = RunSettings.value_mode
+    episodes: int = RunSettings.value_episodes
 
     def __post_init__(self) -> None:
         if self.mode not in VALUE_MODES:

@@ -32,7 +32,7 @@ from sb3_sfgpi.common.serialization import jsonable
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.policy_set_files import manifest_path
-from sb3_sfgpi.run_settings import GAMMA
+from sb3_sfgpi.run_settings import GAMMA, RunSettings
 
 #: Runs a joint policy for some episodes from a seed (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.rollout`).
 Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
@@ -349,9 +349,9 @@ class EvaluationConfig:
     """
 
     test_weights: Any = None
-    episodes: int = 1
+    episodes: int = RunSettings.eval_episodes
     policies: str = "shared"
-    gpi_set: str = "all"
+    gpi_set: str = RunSettings.gpi_set
     workers: int = 0
     env_fn: Callable[..., Any] | None = None
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)

@@ -29,7 +29,7 @@ from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory, repl
 from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_logger import run_logger
-from sb3_sfgpi.run_settings import GAMMA, SETTINGS, acts_by_own_policies
+from sb3_sfgpi.run_settings import GAMMA, RunSettings, acts_by_own_policies
 from sb3_sfgpi.schedules import make_schedule
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
@@ -83,19 +83,19 @@ class MASFOLS:
     def __init__(
         self,
         env: ParallelEnv | gym.Env,
-        policy: str = "TabularPolicy",
-        weights: str | np.ndarray | Sequence[float] = "ols",
-        ols_batch: str = "top",
-        steps_per_iteration: int = 10_000,
+        policy: str = RunSettings.policy,
+        weights: str | np.ndarray | Sequence[float] = RunSettings.weights,
+        ols_batch: str = RunSettings.ols_batch,
+        steps_per_iteration: int = RunSettings.steps_per_iteration,
         learner_kwargs: Mapping[str, Any] | None = None,
-        sharing: str = "independent",
+        sharing: str = RunSettings.sharing,
         values: ValueEstimation | None = None,
         admission: Admission | None = None,
-        pool_replay: bool = False,
+        pool_replay: bool = RunSettings.pool_replay,
         evaluation: EvaluationConfig | None = None,
-        n_envs: int = 1,
+        n_envs: int = RunSettings.n_envs,
         env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
-        seed: int = 0,
+        seed: int = RunSettings.seed,
         run_dir: str | Path | None = None,
         verbose: int = 0,
     ):
@@ -120,32 +120,32 @@ class MASFOLS:
         fixed = not isinstance(weights, str)
         evaluation = self._evaluation(evaluation or EvaluationConfig(), weights if fixed else None, sharing, env_fn)
         self.run_dir = None if run_dir is None else RunDirectory(run_dir)
-        self.settings = {
-            "policy": policy,
-            "weights": weights if isinstance(weights, str) else np.asarray(weights, dtype=np.float64).tolist(),
-            "ols_batch": ols_batch,
-            "steps_per_iteration": steps_per_iteration,
-            "learner_kwargs": learner_kwargs,
-            "test_weights": evaluation.test_weights.tolist(),
-            "seed": seed,
-            "value_mode": values.mode,
-            "value_episodes": values.episodes,
-            "eval_episodes": evaluation.episodes,
-            "gpi_set": evaluation.gpi_set,
-            "validation_weights": admission.validation_weights,
-            "prune": admission.prune,
-            "admit_together": admission.together,
-            "pool_replay": pool_replay,
-            "sharing": sharing,
-            "n_envs": n_envs,
-        }
+        self.settings = RunSettings(
+            policy,
+            weights if isinstance(weights, str) else np.asarray(weights, dtype=np.float64).tolist(),
+            ols_batch,
+            steps_per_iteration,
+            learner_kwargs,
+            evaluation.test_weights.tolist(),
+            seed,
+            values.mode,
+            values.episodes,
+            evaluation.episodes,
+            evaluation.gpi_set,
+            admission.validation_weights,
+            admission.prune,
+            admission.together,
+            sharing,
+            n_envs,
+            pool_replay,
+        )
         self.callback = OLSCallback(
             make_schedule(weights, ols_batch), steps_per_iteration, evaluation, values, admission, self.run_dir,
             verbose=verbose, pooled=PooledReplay(self.runner.gamma) if pool_replay else None,
         )  # fmt: skip
         #: What :meth:`learn` writes to ``run.json``: the settings, and any plain data added here (the CLI adds the
         #: domain and the env's arguments)
-        self.run_info: dict[str, Any] = dict(self.settings)
+        self.run_info: dict[str, Any] = self.settings.to_json()
         self._logs_open = False  # logs/ is opened by the first learn(), under the run directory's lock
 
     def _evaluation(
@@ -168,6 +168,44 @@ class MASFOLS:
         return config
 
     @classmethod
+    def from_settings(
+        cls,
+        env: ParallelEnv | gym.Env,
+        settings: RunSettings,
+        env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
+        run_dir: str | Path | None = None,
+        eval_workers: int = 0,
+        verbose: int = 0,
+    ) -> MASFOLS:
+        """
+        A run of ``settings`` (what ``run.json`` stores; the constructor's arguments of the same names).
+
+        :param eval_workers: worker processes of the GPI evaluation (they do not change its results)
+        """
+        return cls(
+            env,
+            policy=settings.policy,
+            weights=settings.weights,
+            ols_batch=settings.ols_batch,
+            steps_per_iteration=settings.steps_per_iteration,
+            learner_kwargs=settings.learner_kwargs,
+            sharing=settings.sharing,
+            values=ValueEstimation(settings.value_mode, settings.value_episodes),
+            admission=Admission(
+                settings.validation_weights, prune=settings.prune, together=settings.admit_together, verbose=verbose
+            ),
+            pool_replay=settings.pool_replay,
+            evaluation=EvaluationConfig(
+                settings.test_weights, settings.eval_episodes, gpi_set=settings.gpi_set, workers=eval_workers
+            ),
+            n_envs=settings.n_envs,
+            env_fn=env_fn,
+            seed=settings.seed,
+            run_dir=run_dir,
+            verbose=verbose,
+        )
+
+    @classmethod
     def load(cls, run_dir: str | Path, env: ParallelEnv | gym.Env, **kwargs: Any) -> MASFOLS:
         """
         Continue the run in ``run_dir`` from its last checkpoint, with the settings stored in its ``run.json``.
@@ -179,15 +217,11 @@ class MASFOLS:
         :raises ValueError: not a run directory, a run file of another format version, or a stored setting missing
         """
         config = RunDirectory(run_dir).read_config()
-        missing = [key for key in SETTINGS if key not in config]
-        if missing:
-            raise ValueError(f"{run_dir}/run.json lacks the settings {missing}: not a run of MASFOLS")
         unknown = set(kwargs) - {"env_fn", "verbose", "eval_workers"}
         if unknown:
             raise ValueError(f"MASFOLS.load takes env_fn, verbose and eval_workers, not {sorted(unknown)}")
-        workers, verbose = kwargs.pop("eval_workers", 0), kwargs.get("verbose", 0)
-        model = cls(env, run_dir=run_dir, **_arguments(config, workers, verbose), **kwargs)
-        model.run_info = {**config, **model.settings}
+        model = cls.from_settings(env, RunSettings.stored(config, f"{run_dir}/run.json"), run_dir=run_dir, **kwargs)
+        model.run_info = {**config, **model.run_info}
         model.callback.resume = True
         return model
 
@@ -205,7 +239,7 @@ class MASFOLS:
         """
         if self.run_dir is None:
             return self._learn(max_iterations, callback, progress_bar)
-        with self.run_dir.lock(f"MASFOLS.learn (seed {self.settings['seed']})"):  # one writer per run directory
+        with self.run_dir.lock(f"MASFOLS.learn (seed {self.settings.seed})"):  # one writer per run directory
             if not self.callback.resume:
                 if self.run_dir.has_checkpoint():
                     raise ValueError(f"{self.run_dir} already holds a run: continue it with MASFOLS.load")
@@ -250,19 +284,3 @@ def _check_poolable(runner: MultiAgentRunner, policy: str) -> None:
         )
     if policy != "TabularPolicy":
         raise ValueError(f"pool_replay plans SF tables: policy must be 'TabularPolicy', got {policy!r}")
-
-
-def _arguments(config: Mapping[str, Any], eval_workers: int, verbose: int) -> dict[str, Any]:
-    """The arguments of :class:`MASFOLS` that rebuild a run from its stored settings."""
-    direct = (
-        *("policy", "weights", "ols_batch", "steps_per_iteration", "learner_kwargs", "sharing", "n_envs", "seed"),
-        "pool_replay",
-    )
-    admission = Admission(
-        config["validation_weights"], prune=config["prune"], together=config["admit_together"], verbose=verbose
-    )
-    evaluation = EvaluationConfig(
-        config["test_weights"], config["eval_episodes"], gpi_set=config["gpi_set"], workers=eval_workers
-    )
-    values = ValueEstimation(config["value_mode"], config["value_episodes"])
-    return {**{key: config[key] for key in direct}, "values": values, "admission": admission, "evaluation": evaluation}

@@ -7,9 +7,13 @@ Stable-Baselines3.
 
 from __future__ import annotations
 
-#: The name of the one learner all agents share (``sharing="shared"``).
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
 #: The discount factor of learners, runs and evaluations that are given none.
 GAMMA = 0.99
+#: The name of the one learner all agents share (``sharing="shared"``).
 SHARED = "shared"
 #: How agents get their learners: one each, or one for all (:class:`~sb3_sfgpi.multiagent.MultiAgentRunner`'s
 #: ``sharing``).
@@ -19,27 +23,57 @@ OLS_BATCHES = ("top", "same-after-extrema")
 #: How the values of new policies can be estimated (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`).
 VALUE_MODES = ("joint", "shared")
 
-#: The settings stored in ``run.json`` (what :meth:`MASFOLS.load <sb3_sfgpi.masfols.MASFOLS.load>` rebuilds a run
-#: from).
-SETTINGS = (
-    "policy",
-    "weights",
-    "ols_batch",
-    "steps_per_iteration",
-    "learner_kwargs",
-    "test_weights",
-    "seed",
-    "value_mode",
-    "value_episodes",
-    "eval_episodes",
-    "gpi_set",
-    "validation_weights",
-    "prune",
-    "admit_together",
-    "sharing",
-    "n_envs",
-    "pool_replay",
-)
+
+@dataclass(frozen=True)
+class RunSettings:
+    """
+    The settings of a :class:`~sb3_sfgpi.masfols.MASFOLS` run that decide its results: what ``run.json`` stores and
+    what :meth:`MASFOLS.from_settings <sb3_sfgpi.masfols.MASFOLS.from_settings>` builds a run from (its arguments
+    of the same names say what each one is).
+
+    ``test_weights`` is an array ``(n, d)``, a number ``n`` of Dirichlet(1) weights drawn with seed 0, or None (12
+    such weights; fixed weights: those); a run stores the array it drew.
+    """
+
+    policy: str = "TabularPolicy"
+    weights: str | list[float] = "ols"
+    ols_batch: str = "top"
+    steps_per_iteration: int = 10_000
+    learner_kwargs: dict[str, Any] = field(default_factory=dict)
+    test_weights: Any = None
+    seed: int = 0
+    value_mode: str = "joint"
+    value_episodes: int = 1
+    eval_episodes: int = 1
+    gpi_set: str = "all"
+    validation_weights: int = 0
+    prune: bool = False
+    admit_together: bool = False
+    sharing: str = "independent"
+    n_envs: int = 1
+    pool_replay: bool = False
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The settings' names, in ``run.json``'s order."""
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def stored(cls, config: Mapping[str, Any], where: str) -> RunSettings:
+        """
+        The settings of a ``run.json`` (its other keys ignored).
+
+        :param where: the file, for the error
+        :raises ValueError: a setting is missing
+        """
+        missing = [name for name in cls.names() if name not in config]
+        if missing:
+            raise ValueError(f"{where} lacks the settings {missing}: not a run of MASFOLS")
+        return cls(**{name: config[name] for name in cls.names()})
+
+    def to_json(self) -> dict[str, Any]:
+        """The settings as ``run.json`` stores them."""
+        return asdict(self)
 
 
 def acts_by_own_policies(fixed: bool, sharing: str) -> bool:

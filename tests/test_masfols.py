@@ -17,7 +17,8 @@ from sb3_sfgpi.callbacks import ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.masfols import MASFOLS, SETTINGS
+from sb3_sfgpi.masfols import MASFOLS
+from sb3_sfgpi.run_settings import RunSettings
 
 #: The chain's tabular learner settings, without the policy (MASFOLS takes it apart).
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
@@ -88,8 +89,8 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     model.run_info["domain"] = "chain"  # plain data of the caller's, written to run.json by learn()
     model.learn(max_iterations=2)
     config = json.loads((tmp_path / "run.json").read_text())
-    assert set(SETTINGS) <= set(config) and config["domain"] == "chain"
-    assert {key: config[key] for key in SETTINGS} == json.loads(json.dumps(model.settings))
+    assert set(RunSettings.names()) <= set(config) and config["domain"] == "chain"
+    assert RunSettings.stored(config, "run.json") == model.settings
     assert config["policy"] == "TabularPolicy" and config["weights"] == "random"
     assert config["steps_per_iteration"] == 50 and config["seed"] == 4
     assert config["learner_kwargs"] == LEARNER_KWARGS

@@ -15,7 +15,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS
+from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, RunSettings
 from sb3_sfgpi.trust import refuse_unlisted
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
@@ -77,14 +77,14 @@ class DomainPreset:
     n_test_weights: int
     value_episodes: int
     eval_episodes: int
-    value_mode: str = "joint"
-    gpi_set: str = "all"
-    ols_batch: str = "top"
-    validation_weights: int = 0
-    prune: bool = False
-    admit_together: bool = False
-    pool_replay: bool = False
-    sharing: str = "independent"
+    value_mode: str = RunSettings.value_mode
+    gpi_set: str = RunSettings.gpi_set
+    ols_batch: str = RunSettings.ols_batch
+    validation_weights: int = RunSettings.validation_weights
+    prune: bool = RunSettings.prune
+    admit_together: bool = RunSettings.admit_together
+    pool_replay: bool = RunSettings.pool_replay
+    sharing: str = RunSettings.sharing
     eval_workers: int = 0
     objectives: list[str] | None = None
     baselines: dict[str, dict[str, Any]] = field(default_factory=dict)

@@ -12,7 +12,7 @@ from typing import Any
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import DomainPreset
 from sb3_sfgpi.cli.values import key_values
-from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, VALUE_MODES
+from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, VALUE_MODES, RunSettings
 
 #: The largest count a setting takes (weights, episodes, copies): beyond, a run would not fit in memory or time.
 MAX_COUNT = 1_000_000
@@ -44,8 +44,6 @@ SETTABLE: dict[str, tuple[Callable[[Any], bool], str]] = {
 }
 #: Settings that do not change a run's results: a resumed run may use other values.
 MACHINE_SETTINGS = ("eval_workers",)
-#: Settings that presets do not carry, with their default.
-DEFAULTS = {"n_envs": 1}
 
 
 def method_settings(preset: DomainPreset, items: Sequence[str], algo: str) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -64,7 +62,7 @@ def method_settings(preset: DomainPreset, items: Sequence[str], algo: str) -> tu
         check, what = SETTABLE[key]
         if not check(value):
             raise UsageError(f"--set {key} must be {what}, got {value!r}")
-    settings = {key: given.get(key, getattr(preset, key, DEFAULTS.get(key))) for key in SETTABLE}
+    settings = {key: given.get(key, getattr(preset, key, getattr(RunSettings, key, None))) for key in SETTABLE}
     if algo != "ma-sfols":
         if "ols_batch" in given:
             raise UsageError(f"--set ols_batch is only for --algo ma-sfols (OLS weights), not --algo {algo}")

@@ -18,6 +18,7 @@ from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_
 from sb3_sfgpi.cli.settings import SETTABLE, check_resumed, method_settings
 from sb3_sfgpi.cli.values import check_weights, key_values
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_settings import RunSettings
 
 if TYPE_CHECKING:
     from sb3_sfgpi.masfols import MASFOLS
@@ -250,40 +251,18 @@ def _model(
 ) -> MASFOLS:
     """A new MASFOLS for the run, or the stored one continued (``--resume``)."""
     # The learners (torch, SB3, scipy): imported once the options and the run directory are checked.
-    from sb3_sfgpi.admission import Admission
-    from sb3_sfgpi.callbacks import ValueEstimation
-    from sb3_sfgpi.evaluation import EvaluationConfig
     from sb3_sfgpi.masfols import MASFOLS
 
     env_fn = functools.partial(preset.make_env, **config["env_kwargs"])
+    workers = config["eval_workers"]
     if args.resume:
         run_dir.write_config(config)
-        return MASFOLS.load(run_dir.path, env, verbose=1, env_fn=env_fn, eval_workers=config["eval_workers"])
-    fixed = not isinstance(config["weights"], str)
-    model = MASFOLS(
-        env,
-        policy=config["policy"],
-        weights=config["weights"],
-        ols_batch=config["ols_batch"],
-        steps_per_iteration=config["steps_per_iteration"],
-        learner_kwargs=config["learner_kwargs"],
-        sharing=config["sharing"],
-        values=ValueEstimation(config["value_mode"], config["value_episodes"]),
-        admission=Admission(config["validation_weights"], prune=config["prune"], together=config["admit_together"]),
-        pool_replay=config["pool_replay"],
-        evaluation=EvaluationConfig(
-            None if fixed else config["n_test_weights"],  # fixed: at --w
-            config["eval_episodes"],
-            gpi_set=config["gpi_set"],
-            workers=config["eval_workers"],
-        ),
-        n_envs=config["n_envs"],
-        env_fn=env_fn,
-        seed=config["seed"],
-        run_dir=run_dir.path,
-        verbose=1,
-    )
-    model.run_info = {**config, **model.settings}
+        return MASFOLS.load(run_dir.path, env, verbose=1, env_fn=env_fn, eval_workers=workers)
+    test_weights = None if not isinstance(config["weights"], str) else config["n_test_weights"]  # fixed: at --w
+    chosen = {name: config[name] for name in RunSettings.names() if name != "test_weights"}
+    settings = RunSettings(**chosen, test_weights=test_weights)
+    model = MASFOLS.from_settings(env, settings, env_fn, run_dir.path, eval_workers=workers, verbose=1)
+    model.run_info = {**config, **model.run_info}
     return model
 
 
@@ -295,7 +274,7 @@ def _stopped_message(args: argparse.Namespace, run_dir: RunDirectory, model: MAS
     else:
         reason = f"{type(error).__name__}: {error}"
     reason = " ".join(reason.split())  # one line
-    weights = model.settings["weights"]
+    weights = model.settings.weights
     return (
         f"training stopped in iteration {done + 1} ({reason}). The checkpoint of the last finished "
         f"iteration ({done} done) in {run_dir} is intact: continue with "
