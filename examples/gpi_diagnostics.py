@@ -30,6 +30,7 @@ from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_policy_set import load_policy_set
 
 
 def predicted_and_returned(policy_set: GPIPolicy, env, test_weights: np.ndarray, gamma: float, seed: int):
@@ -60,7 +61,7 @@ def union_per_weight(sets: dict[str, GPIPolicy], env, test_weights: np.ndarray, 
 def final_set(run_dir: RunDirectory) -> GPIPolicy:
     """Π as the run's last checkpoint has it (retired policies left out)."""
     state = run_dir.read_checkpoint()
-    return run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"])
+    return load_policy_set(run_dir, state["n_policies"], iteration=state["iteration"])
 
 
 def joined(first: GPIPolicy, second: GPIPolicy) -> GPIPolicy:
@@ -92,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
         env.close()
         return
     state = run_dir.read_checkpoint()
-    policy_set = run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
+    policy_set = load_policy_set(run_dir, state["n_policies"], iteration=state["iteration"], record=True)
     for iteration in sorted({info.iteration for info in policy_set.infos}):
         subset = policy_set.as_of(iteration).members()  # Π after iteration k
         predicted, returned = predicted_and_returned(subset, env, test_weights, gamma, config["seed"])

@@ -39,6 +39,7 @@ from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, run_episodes
 from sb3_sfgpi.evaluation import gpi_score
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_policy_set import load_policy_set
 
 
 class Candidates:
@@ -53,7 +54,7 @@ class Candidates:
 
     def __init__(self, run_dir: RunDirectory, config: dict[str, Any], env: Any, validation: Admission):
         state = run_dir.read_checkpoint()
-        self.record = run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
+        self.record = load_policy_set(run_dir, state["n_policies"], iteration=state["iteration"], record=True)
         self.iterations = state["iteration"]
         self.env = env
         self.gamma = config["learner_kwargs"].get("gamma", 0.99)

@@ -30,6 +30,7 @@ from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
+from sb3_sfgpi.run_policy_set import commit_policy_set, load_policy_set, stage_policy_set, staged_digest
 from sb3_sfgpi.run_settings import VALUE_MODES, RunSettings
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
@@ -316,7 +317,7 @@ class OLSCallback(BaseCallback):
         if self._policy_dir is None and self.evaluation.workers > 0:
             self._policy_dir = RunDirectory.temporary()  # the workers load Π from disk
         if self._policy_dir is not None and len(self.record):
-            self._staged_policy_set = self._policy_dir.stage_policy_set(self.record, self.iteration + 1)
+            self._staged_policy_set = stage_policy_set(self._policy_dir, self.record, self.iteration + 1)
 
     def _write_checkpoint(self, next_weights: AgentWeights | None) -> None:
         if self.run_dir is None:
@@ -332,18 +333,20 @@ class OLSCallback(BaseCallback):
             "schedule": self.schedule.state_dict(),
             "next_weights": None if next_weights is None else {a: w.tolist() for a, w in next_weights.items()},
             "learners": bool(going_on),  # learners that go on across iterations: their state in learners/
+            "policy_set": staged_digest(self.run_dir),  # Π: the set this iteration staged
         }
         self.run_dir.write_iteration(self.history, checkpoint)
+        commit_policy_set(self.run_dir)
         if going_on:
             self.run_dir.remove_learners_before(self.iteration)
 
     def _restore(self) -> AgentWeights | None:
         """Restore the state of the last finished iteration; return the next weights (None if the schedule ended)."""
         assert self.run_dir is not None
-        self.run_dir.commit_policy_set()  # a set the checkpoint named but a killed writer did not commit
+        commit_policy_set(self.run_dir)  # a set the checkpoint named but a killed writer did not commit
         state = self.run_dir.read_checkpoint()
         self.schedule.load_state_dict(state["schedule"])
-        self.record = self.run_dir.load_policy_set(state["n_policies"], iteration=state["iteration"], record=True)
+        self.record = load_policy_set(self.run_dir, state["n_policies"], iteration=state["iteration"], record=True)
         self.policy_set = self.record.members()
         self.history = self.run_dir.read_history(state["iteration"])
         self.iteration = state["iteration"]

@@ -24,15 +24,13 @@ Layout (no other module spells these names)::
 Every file is written atomically. After an iteration, Π is staged first (evaluation workers load it), then the
 evaluation files, and ``checkpoint.json`` last: it is what a resume trusts, so rows beyond its counts (left by an
 iteration that was killed) are ignored, and so are experience files beyond its iteration. The checkpoint names its
-set by the digest of the staged manifest; only then does the staged manifest become ``manifest.json`` and the files
-no manifest names go. A reader of the run therefore loads the set of the checkpoint, whenever the writer was killed:
-files are never written over, and a staged set that no checkpoint named is never read.
+set by the digest of the staged manifest, and only then does that become ``manifest.json``
+(:mod:`sb3_sfgpi.run_policy_set`): a reader loads the checkpoint's set wherever the writer was killed.
 """
 
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
 import json
 import shutil
@@ -49,9 +47,7 @@ from sb3_sfgpi.run_lock import RunDirectoryBusy, RunLock, check_not_written
 from sb3_sfgpi.trust import check_learner_kwargs
 
 if TYPE_CHECKING:
-    import torch as th
-
-    from sb3_sfgpi.gpi import GPIPolicy
+    pass
 
 #: The file of a policy-set directory that describes the set and names its other files (see
 #: :mod:`sb3_sfgpi.policy_set_files`).
@@ -122,26 +118,6 @@ def _string(value: Any) -> bool:
 
 def _hexadecimal(value: str) -> bool:
     return all(c in "0123456789abcdef" for c in value)
-
-
-def _digest(path: Path) -> str:
-    """The SHA-256 digest of a file (a manifest: it names every file of its set)."""
-    digest = hashlib.sha256()
-    with path.open("rb") as file:
-        for chunk in iter(lambda: file.read(2**20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
-def _listed_files(manifest: Path) -> set[str] | None:
-    """The policy files a manifest names: none if it is missing, None if it is unreadable."""
-    if not manifest.is_file():
-        return set()
-    try:
-        entries = read_json(manifest, "policy-set manifest")["policies"]
-        return {entry["file"] for entry in entries if isinstance(entry["file"], str)}
-    except (KeyError, TypeError, ValueError):
-        return None
 
 
 #: What the known settings of ``run.json`` must be (others are kept as they are).
@@ -268,28 +244,6 @@ class RunDirectory:
     def has_evaluations(self) -> bool:
         return (self.path / self.EVALUATION_CSV).is_file()
 
-    def has_policy_set(self) -> bool:
-        """Whether the last checkpoint (or, in a directory without one, a save) left a policy set."""
-        return self.policy_set_manifest() is not None
-
-    def policy_set_manifest(self) -> Path | None:
-        """
-        The manifest of the checkpoint's Π: the committed one, or the staged one the checkpoint named if the writer
-        stopped before committing it (None: no set yet).
-
-        :raises ValueError: neither manifest is the one the checkpoint names
-        """
-        committed, staged = self.policy_set_dir / MANIFEST, self.policy_set_dir / STAGED_MANIFEST
-        if not self.has_checkpoint():
-            return committed if committed.is_file() else None
-        named = self.read_checkpoint().get("policy_set")
-        for manifest in (committed, staged):
-            if named is not None and manifest.is_file() and _digest(manifest) == named:
-                return manifest
-        if named is None and not committed.is_file():
-            return None
-        raise ValueError(f"{self.policy_set_dir} does not hold the policy set that {self.CHECKPOINT} names")
-
     # --- run.json ---------------------------------------------------------------------------------------------
     def read_config(self, required: Sequence[str] = ()) -> dict[str, Any]:
         """
@@ -324,80 +278,8 @@ class RunDirectory:
         """Write ``run.json``: ``config`` with the format's name and version."""
         atomic_write_json(self.path / self.RUN, {"format": RUN_FORMAT, "version": RUN_VERSION, **config})
 
-    # --- Π ----------------------------------------------------------------------------------------------------
-    def stage_policy_set(self, policy_set: GPIPolicy, iteration: int) -> Path:
-        """
-        Write the set an iteration makes beside the committed one, for :meth:`write_iteration` to commit.
-
-        :param iteration: the iteration (stamped in its files' names, so no committed file is written over)
-        :return: its manifest (what evaluation workers load)
-        """
-        policy_set.save(self.policy_set_dir, manifest=STAGED_MANIFEST, stamp=iteration)
-        self._remove_unlisted_policy_files()
-        return self.policy_set_dir / STAGED_MANIFEST
-
-    def commit_policy_set(self) -> None:
-        """
-        Make the staged set the run's set if the checkpoint names it, else drop it; then remove the files no
-        manifest names (after a writer was killed, before a resumed run goes on).
-        """
-        staged = self.policy_set_dir / STAGED_MANIFEST
-        if staged.is_file():
-            named = self.read_checkpoint().get("policy_set") if self.has_checkpoint() else None
-            if named is not None and _digest(staged) == named:
-                staged.replace(self.policy_set_dir / MANIFEST)
-            else:
-                staged.unlink()
-        self._remove_unlisted_policy_files()
-
-    def _remove_unlisted_policy_files(self) -> None:
-        """Delete the policy files that neither the committed nor the staged manifest names (none if one is corrupt)."""
-        listed = [_listed_files(self.policy_set_dir / name) for name in (MANIFEST, STAGED_MANIFEST)]
-        if any(names is None for names in listed):
-            return
-        keep = set().union(*listed)  # type: ignore[arg-type]
-        for path in self.policy_set_dir.glob("policy_*.pt"):
-            if path.name not in keep:
-                path.unlink()
-
-    def load_policy_set(
-        self,
-        n_policies: int | None = None,
-        device: th.device | str = "cpu",
-        iteration: int | None = None,
-        record: bool = False,
-    ) -> GPIPolicy:
-        """
-        Π as saved, or as it was at a checkpoint: the first ``n_policies`` policies the run recorded, those that
-        validation retired after ``iteration`` back in Π.
-
-        :param n_policies: the checkpoint's ``n_policies`` (None: every saved policy)
-        :param iteration: the checkpoint's ``iteration`` (None: retired policies stay retired)
-        :param record: every recorded policy, the retired ones marked (what a run continues from); default: Π's
-            members, what GPI acts over
-        :raises ValueError: no policy set, or fewer policies than ``n_policies``
-        """
-        manifest = self.policy_set_manifest()
-        if manifest is None:
-            raise ValueError(f"{self.path} has no policy set yet")
-        from sb3_sfgpi.gpi import GPIPolicy  # torch and SB3: only where Π is read, not where a run is looked at
-
-        saved = GPIPolicy.load(manifest, device=device, retired=True)
-        if n_policies is not None and n_policies > len(saved):
-            raise ValueError(f"{self.policy_set_dir} holds {len(saved)} policies, the checkpoint {n_policies}")
-        policy_set = saved if n_policies is None else saved.subset(range(n_policies))
-        if iteration is not None:
-            policy_set = policy_set.as_of(iteration)
-        return policy_set if record else policy_set.members()
-
     def write_iteration(self, history: Sequence[dict[str, Any]], checkpoint: dict[str, Any]) -> None:
-        """
-        The evaluation files of every iteration so far, then ``checkpoint.json`` (a resume trusts it), naming the
-        staged policy set (or else the committed one), which it then commits.
-        """
-        staged, committed = self.policy_set_dir / STAGED_MANIFEST, self.policy_set_dir / MANIFEST
-        named = staged if staged.is_file() else committed
-        checkpoint = {**checkpoint, "policy_set": _digest(named) if named.is_file() else None}
+        """The evaluation files of every iteration so far, then ``checkpoint.json`` (last: a resume trusts it)."""
         atomic_write_json(self.path / self.EVALUATION_JSON, list(history))
         out = io.StringIO()
         writer = csv.DictWriter(out, fieldnames=SUMMARY_FIELDS, extrasaction="ignore")
@@ -405,7 +287,6 @@ class RunDirectory:
         writer.writerows(history)
         atomic_write_bytes(self.path / self.EVALUATION_CSV, out.getvalue().encode())
         atomic_write_json(self.path / self.CHECKPOINT, checkpoint)
-        self.commit_policy_set()
 
     def read_checkpoint(self) -> dict[str, Any]:
         """

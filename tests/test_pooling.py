@@ -19,6 +19,7 @@ from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.policy_files import file_state
 from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_policy_set import load_policy_set
 from sb3_sfgpi.sfdqn import TabularSFNetwork
 from sb3_sfgpi.sfdqn.planning import Experience
 
@@ -216,7 +217,7 @@ def test_a_run_killed_before_its_checkpoint_leaves_on_disk_the_set_of_its_checkp
     state = RunDirectory(tmp_path).read_checkpoint()
     for loaded in (  # what a user, `evaluate` and a resume read: the checkpoint's
         GPIPolicy.load(tmp_path / "policy_set", retired=True),
-        RunDirectory(tmp_path).load_policy_set(state["n_policies"], iteration=state["iteration"], record=True),
+        load_policy_set(RunDirectory(tmp_path), state["n_policies"], iteration=state["iteration"], record=True),
     ):
         assert same_tables(loaded, after_one)
 

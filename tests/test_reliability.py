@@ -24,6 +24,7 @@ from sb3_sfgpi.cli.train import _stopped_message
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_settings import RunSettings
 from sb3_sfgpi.sfdqn import SFDQN
 
 
@@ -211,7 +212,7 @@ def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_pat
 
 def test_the_stop_message_repeats_the_iteration_cap(tmp_path):
     args = parse_args(["train", "four-room", "--iterations", "3", "--out", str(tmp_path)])
-    model = SimpleNamespace(settings={"weights": "ols"}, callback=SimpleNamespace(iteration=1))
+    model = SimpleNamespace(settings=RunSettings(), callback=SimpleNamespace(iteration=1))
     message = _stopped_message(args, RunDirectory(tmp_path), model, KeyboardInterrupt())
     assert message.endswith(
         f"`sb3-sfgpi train four-room --algo ma-sfols --seed 0 --out {tmp_path} --resume --iterations 3`"

@@ -7,12 +7,10 @@ import json
 import os
 import stat
 
-import numpy as np
 import pytest
 
 import sb3_sfgpi.run_directory as run_directory_module
 from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json
-from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.run_directory import SUMMARY_FIELDS, RunDirectory
 
 
@@ -82,7 +80,7 @@ def test_layout(tmp_path):
     assert run_dir.logs_dir == tmp_path / "run" / "logs"
     assert run_dir.tensorboard_dir == tmp_path / "run" / "tensorboard"
     assert run_dir.compare_file == tmp_path / "run" / "compare.json"
-    assert not (run_dir.is_run() or run_dir.has_checkpoint() or run_dir.has_evaluations() or run_dir.has_policy_set())
+    assert not (run_dir.is_run() or run_dir.has_checkpoint() or run_dir.has_evaluations())
     assert not run_dir.path.exists()  # nothing is created before something is written
 
     run_dir.write_config({"seed": 1})
@@ -213,64 +211,6 @@ def test_read_summary_needs_an_evaluation(tmp_path):
         RunDirectory(tmp_path).read_summary()
 
 
-# --- policy set -------------------------------------------------------------------------------------------------
-@pytest.fixture
-def policy_set(make_random_tabular) -> GPIPolicy:
-    rng = np.random.default_rng(0)
-    policies = GPIPolicy()
-    for seed in range(4):
-        w = rng.dirichlet(np.ones(3))
-        policies.add(make_random_tabular(seed), weights=w, value=rng.normal(size=3), agent=f"agent_{seed % 2}")
-    return policies
-
-
-def commit(run_dir: RunDirectory, policy_set, iteration: int = 1) -> None:
-    """Π staged by an iteration and committed by its checkpoint."""
-    run_dir.stage_policy_set(policy_set, iteration)
-    run_dir.write_iteration([row(i) for i in range(1, iteration + 1)], checkpoint(iteration))
-
-
-def test_load_policy_set_returns_the_first_n_policies(tmp_path, policy_set):
-    run_dir = RunDirectory(tmp_path)
-    with pytest.raises(ValueError, match="no policy set"):
-        run_dir.load_policy_set()
-    commit(run_dir, policy_set)
-    assert run_dir.has_policy_set()
-    obs = np.array([[0, 0, 0], [1, 2, 1], [2, 3, 0]])
-    everything = run_dir.load_policy_set()
-    assert len(everything) == 4
-    np.testing.assert_allclose(everything.successor_features(obs), policy_set.successor_features(obs))
-    for n in (0, 1, 3):
-        loaded = run_dir.load_policy_set(n)
-        assert len(loaded) == n
-        for mine, theirs in zip(loaded.infos, policy_set.infos[:n], strict=True):
-            np.testing.assert_allclose(mine.weights, theirs.weights)
-            np.testing.assert_allclose(mine.value, theirs.value)
-            assert mine.agent == theirs.agent
-        if n:
-            np.testing.assert_allclose(loaded.successor_features(obs), policy_set.successor_features(obs)[:n])
-
-
-def test_load_policy_set_restores_pi_as_it_was_at_a_checkpoint(tmp_path, policy_set):
-    run_dir = RunDirectory(tmp_path)
-    policy_set.retire(0, 2)  # retired after iteration 2
-    policy_set.retire(2, 3)  # retired after iteration 3: a save made after the checkpoint of iteration 2
-    commit(run_dir, policy_set)
-    assert [i.agent for i in run_dir.load_policy_set().infos] == [policy_set.infos[i].agent for i in (1, 3)]
-    at_2 = run_dir.load_policy_set(3, iteration=2, record=True)  # the checkpoint of iteration 2 counted 3
-    assert [info.retired for info in at_2.infos] == [2, None, None]
-    members = run_dir.load_policy_set(3, iteration=2)
-    np.testing.assert_allclose(members.successor_features(np.array([[1, 2, 1]])),
-                               policy_set.subset([1, 2]).successor_features(np.array([[1, 2, 1]])))  # fmt: skip
-
-
-def test_load_policy_set_refuses_more_policies_than_saved(tmp_path, policy_set):
-    run_dir = RunDirectory(tmp_path)
-    commit(run_dir, policy_set)
-    with pytest.raises(ValueError, match="holds 4 policies, the checkpoint 5"):
-        run_dir.load_policy_set(5)
-
-
 # --- temporary directories --------------------------------------------------------------------------------------
 def test_temporary_directory_is_removed_by_remove_temporary():
     run_dir = RunDirectory.temporary()
@@ -302,50 +242,3 @@ def test_files_written_atomically_get_the_mode_the_umask_gives(tmp_path, umask, 
         os.umask(previous)
     assert stat.S_IMODE((tmp_path / "run.json").stat().st_mode) == mode
     assert json.loads((tmp_path / "run.json").read_text()) == {"a": 1}
-
-
-# --- Π committed by its checkpoint ------------------------------------------------------------------------------
-def features(policy_set) -> np.ndarray:
-    return policy_set.successor_features(np.array([[0, 0, 0], [1, 2, 1], [2, 3, 0]]))
-
-
-def test_a_set_staged_without_its_checkpoint_is_never_read_and_its_files_go(tmp_path, policy_set):
-    run_dir = RunDirectory(tmp_path)
-    commit(run_dir, policy_set.subset([0, 1]))
-    committed_files = files_of(run_dir.policy_set_dir)
-    run_dir.stage_policy_set(policy_set, 2)  # iteration 2 staged Π; its writer was killed before the checkpoint
-    assert files_of(run_dir.policy_set_dir) >= committed_files  # not one committed file written over
-    for loaded in (run_dir.load_policy_set(), GPIPolicy.load(run_dir.policy_set_dir)):
-        np.testing.assert_array_equal(features(loaded), features(policy_set.subset([0, 1])))
-    run_dir.commit_policy_set()  # what a resume does first: the checkpoint did not name it, so it goes
-    assert files_of(run_dir.policy_set_dir) == committed_files
-
-
-def test_a_set_its_checkpoint_named_is_read_and_committed_after_a_kill(tmp_path, policy_set, monkeypatch):
-    run_dir = RunDirectory(tmp_path)
-    commit(run_dir, policy_set.subset([0, 1]))
-    with monkeypatch.context() as patch:  # killed between the checkpoint and the commit
-        patch.setattr(RunDirectory, "commit_policy_set", lambda self: None)
-        commit(run_dir, policy_set, 2)
-    assert (run_dir.policy_set_dir / "manifest.next.json").is_file()
-    np.testing.assert_array_equal(features(run_dir.load_policy_set()), features(policy_set))  # the checkpoint's
-    np.testing.assert_array_equal(features(GPIPolicy.load(run_dir.policy_set_dir)), features(policy_set.subset([0, 1])))
-    run_dir.commit_policy_set()
-    assert sorted(files_of(run_dir.policy_set_dir)) == ["manifest.json", *(f"policy_00{i}.0002.pt" for i in range(4))]
-    np.testing.assert_array_equal(features(GPIPolicy.load(run_dir.policy_set_dir)), features(policy_set))
-
-
-def test_a_checkpoint_naming_a_set_that_is_not_there_is_refused(tmp_path, policy_set):
-    run_dir = RunDirectory(tmp_path)
-    commit(run_dir, policy_set)
-    state = json.loads((tmp_path / "checkpoint.json").read_text())
-    (tmp_path / "checkpoint.json").write_text(json.dumps({**state, "policy_set": "0" * 64}))
-    with pytest.raises(ValueError, match="does not hold the policy set that checkpoint.json names"):
-        run_dir.load_policy_set()
-    (tmp_path / "checkpoint.json").write_text(json.dumps({**state, "policy_set": "not a digest"}))
-    with pytest.raises(ValueError, match="'policy_set' must be null or a SHA-256 digest"):
-        run_dir.read_checkpoint()
-
-
-def files_of(directory) -> set[str]:
-    return {path.name for path in directory.iterdir()}

@@ -11,6 +11,7 @@ from conftest import train_tiny_run
 from sb3_sfgpi.cli import run_shipping
 from sb3_sfgpi.cli.run_shipping import snapshot, unpack
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_policy_set import load_policy_set
 
 
 def files(folder) -> dict[str, bytes]:
@@ -23,7 +24,7 @@ def test_a_snapshot_unpacks_into_the_same_run_directory_but_its_lock(tmp_path):
     home = tmp_path / "home" / "run"
     unpack(snapshot(run), home)
     assert files(home) == {name: data for name, data in files(run).items() if name != ".lock"}
-    assert RunDirectory(home).load_policy_set() is not None  # the checkpoint's Π
+    assert load_policy_set(RunDirectory(home)) is not None  # the checkpoint's Π
     (run / "evaluation.csv").write_text("changed")
     unpack(snapshot(run), home)  # a later snapshot replaces the earlier one
     assert (home / "evaluation.csv").read_text() == "changed"

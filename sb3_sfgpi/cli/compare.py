@@ -26,6 +26,7 @@ from sb3_sfgpi.cli.values import check_weights
 from sb3_sfgpi.common.serialization import atomic_write_json
 from sb3_sfgpi.common.weights import format_weights, same_weight
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_policy_set import policy_set_manifest
 from sb3_sfgpi.run_settings import GAMMA, acts_by_own_policies
 
 if TYPE_CHECKING:
@@ -141,7 +142,7 @@ def _planned(
             raise UsageError(f"--w must have length {n_objectives} (one weight per objective), got {len(w)}")
 
     def job(weights: Any, source: RunDirectory | None = None, **kwargs: Any) -> EvaluationJob:
-        manifest = None if source is None else source.policy_set_manifest()
+        manifest = None if source is None else policy_set_manifest(source)
         if source is not None and manifest is None:
             raise UsageError(f"{source} has no policy set yet")
         policy_dir = None if manifest is None else str(manifest)

@@ -16,6 +16,7 @@ from sb3_sfgpi.cli.settings import MAX_COUNT
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_policy_set import load_policy_set
 from sb3_sfgpi.run_settings import GAMMA
 
 if TYPE_CHECKING:
@@ -59,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--episodes must be positive, got {args.episodes}")
     if args.seed < 0:
         raise UsageError(f"--seed must be 0 or more (the environment's reset seed), got {args.seed}")
-    policy_set = run_dir.load_policy_set(state["n_policies"], args.device, state["iteration"])  # Π at the checkpoint
+    policy_set = load_policy_set(run_dir, state["n_policies"], args.device, state["iteration"])  # Π at the checkpoint
     if which == "ccs":
         policy_set = policy_set.ccs_policies()
     w = None if args.w is None else validate_weights(args.w, policy_set.reward_dim, "--w")
