@@ -1,7 +1,7 @@
 """Evaluation jobs on Ray actors vs the library's pool of worker processes (issue 13: one mechanism or two?).
 
 The same traffic evaluation jobs (episodes of SUMO's fixed-time program: the env and the rollout loop of a GPI
-evaluation, without a policy to load) run on :class:`~sb3_sfgpi.evaluation.ParallelEvaluator` with 2 spawned
+evaluation, without a policy to load) run on :class:`~sb3_sfgpi.evaluation_jobs.ParallelEvaluator` with 2 spawned
 processes and on 2 Ray actors that hold the same worker state (each its own env), both started and warmed up
 before timing, interleaved. Starting Ray itself is timed apart.
 """
@@ -26,7 +26,7 @@ def run(quick: bool = False) -> list[Row]:
     from sfgpi_envs.traffic import TrafficSignalEnv
 
     from sb3_sfgpi import evaluation
-    from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator
+    from sb3_sfgpi.evaluation_jobs import EvaluationJob, ParallelEvaluator
 
     @ray.remote(num_cpus=1)
     class EvaluationActor:

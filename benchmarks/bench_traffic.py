@@ -10,7 +10,7 @@
    (not SUMO's start or reload). Target ≥ 0.8×.
 2. **Parallel evaluation.** Episodes of SUMO's fixed-time program (the evaluation of a baseline) in a pool of
    spawned worker processes, 1 vs 2 workers, pools started and warmed up before timing. Uses the library's
-   ``sb3_sfgpi.evaluation.ParallelEvaluator`` when it exists, else a local ``ProcessPoolExecutor`` running
+   ``sb3_sfgpi.evaluation_jobs.ParallelEvaluator`` when it exists, else a local ``ProcessPoolExecutor`` running
    ``sfgpi_envs.traffic.run_program_episode``. On a machine shared with other jobs the second process may not get a
    core of its own.
 """
@@ -183,7 +183,7 @@ class _LibraryPool:
     def __init__(self, workers: int, num_seconds: int):
         from sfgpi_envs.traffic import TrafficSignalEnv
 
-        from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator
+        from sb3_sfgpi.evaluation_jobs import EvaluationJob, ParallelEvaluator
 
         self.job = EvaluationJob
         self.pool = ParallelEvaluator(

@@ -176,7 +176,7 @@ def evaluation_speed(run_dir: Path, workers: int = 2) -> dict[str, float]:
     import time
 
     from sb3_sfgpi.common.seeding import derive_seed
-    from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, run_job
+    from sb3_sfgpi.evaluation_jobs import EvaluationJob, ParallelEvaluator, run_job
 
     run = RunDirectory(run_dir)
     config = run.read_config()

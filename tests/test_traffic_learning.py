@@ -15,7 +15,7 @@ pytest.importorskip("libsumo")
 from sfgpi_envs.traffic import TrafficSignalEnv, run_program_episode  # noqa: E402
 
 from sb3_sfgpi.cli import main  # noqa: E402
-from sb3_sfgpi.evaluation import EvaluationJob, ParallelEvaluator, evaluate_gpi_parallel, run_job  # noqa: E402
+from sb3_sfgpi.evaluation_jobs import EvaluationJob, ParallelEvaluator, evaluate_gpi_parallel, run_job  # noqa: E402
 from sb3_sfgpi.gpi import GPIPolicy  # noqa: E402
 from sb3_sfgpi.multiagent import MultiAgentRunner  # noqa: E402
 from sb3_sfgpi.sfdqn import SFNetwork  # noqa: E402

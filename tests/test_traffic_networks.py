@@ -19,7 +19,7 @@ from sfgpi_envs.traffic import EPISODE_METRIC_KEYS, TrafficSignalEnv, run_progra
 
 from sb3_sfgpi import MASFOLS, EvaluationConfig  # noqa: E402
 from sb3_sfgpi.cli import main  # noqa: E402
-from sb3_sfgpi.evaluation import EvaluationJob, run_job  # noqa: E402
+from sb3_sfgpi.evaluation_jobs import EvaluationJob, run_job  # noqa: E402
 from sb3_sfgpi.gpi import GPIPolicy  # noqa: E402
 
 _SPEC = importlib.util.find_spec("sumo_rl")  # located, not imported: importing sumo_rl needs SUMO_HOME

@@ -31,7 +31,7 @@ from sb3_sfgpi.run_settings import GAMMA, acts_by_own_policies
 
 if TYPE_CHECKING:
     from sb3_sfgpi.common.rollouts import EpisodeReturns
-    from sb3_sfgpi.evaluation import EvaluationJob
+    from sb3_sfgpi.evaluation_jobs import EvaluationJob
 
 COMPARE_FORMAT = "sb3-sfgpi/compare"
 #: (row header, job): what one row of the comparison evaluates
@@ -127,7 +127,7 @@ def _planned(
     args: argparse.Namespace, run_dir: RunDirectory, config: dict[str, Any], preset: DomainPreset, gpi_set: str
 ) -> list[Planned]:
     """Every method as a job on the same episode seeds: GPI at each weight, the fixed learners, the baselines."""
-    from sb3_sfgpi.evaluation import EvaluationJob  # the policy sets' evaluation (torch): once the options are checked
+    from sb3_sfgpi.evaluation_jobs import EvaluationJob  # torch: once the options are checked
 
     fixed_runs = _fixed_runs(args, config, preset)
     weights = [check_weights(w, "--w") for w in (args.w or preset.compare_weights)]
@@ -168,7 +168,7 @@ def _planned(
 def _run(
     planned: list[Planned], preset: DomainPreset, env_kwargs: dict[str, Any], gamma: float, workers: int
 ) -> list[EpisodeReturns]:
-    from sb3_sfgpi.evaluation import ParallelEvaluator, run_job  # torch: here, not to read or plot a comparison
+    from sb3_sfgpi.evaluation_jobs import ParallelEvaluator, run_job  # torch: here, not to read or plot a comparison
 
     if workers:
         with ParallelEvaluator(preset.make_env, env_kwargs, workers, gamma) as evaluator:
