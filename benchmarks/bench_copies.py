@@ -30,7 +30,7 @@ def _runner(k: int, gradient_steps: int, runners: list[MultiAgentRunner]):
     )  # fmt: skip
     runners.append(runner)
     callback = FixedWeights({name: np.array([0.5, 0.5]) for name in runner.learner_names}, 10**9)
-    return lambda n: runner.learn(runner.num_timesteps + n, callback)
+    return lambda n: runner.learn(n, callback)
 
 
 def run(quick: bool = False) -> list[Row]:

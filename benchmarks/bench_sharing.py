@@ -26,7 +26,7 @@ def _runner(sharing: str, n_agents: int):
     env = SwapTerminationsTruncations(mobeach_v0.parallel_env(num_agents=n_agents))
     runner = MultiAgentRunner(env, default_learner_factory(**LEARNER_KWARGS), seed=0, sharing=sharing)
     callback = FixedWeights({name: np.array([0.5, 0.5]) for name in runner.learner_names}, 10**9)
-    return lambda n: runner.learn(runner.num_timesteps + n, callback)
+    return lambda n: runner.learn(n, callback)
 
 
 def run(quick: bool = False) -> list[Row]:

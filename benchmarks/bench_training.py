@@ -366,7 +366,7 @@ def run_multiagent(quick: bool = False) -> list[Row]:
         env = FourRoomParallelEnv(observation_mode="xy")
         ma = MultiAgentRunner(env, default_learner_factory(policy="TabularPolicy", **TABULAR_KWARGS), seed=0)
         callback = FixedWeights({"agent_0": WEIGHTS, "agent_1": WEIGHTS[::-1].copy()}, 10**9)
-        return lambda n: ma.learn(ma.num_timesteps + n, callback)
+        return lambda n: ma.learn(n, callback)
 
     def two_singles():
         models = [

@@ -38,7 +38,8 @@ from sb3_sfgpi.multiagent import MultiAgentRunner
 
 class Snapshots(BaseCallback):
     """
-    Runner-level callback: a copy of every learner's SF network every ``every`` joint steps.
+    Runner-level callback: a copy of every learner's SF network every ``every`` joint steps; the one at the last step
+    is taken again when training ends, of the learners as trained (a table's optimism removed, as ``train`` has it).
 
     :param every: joint steps between two snapshots
     """
@@ -50,13 +51,19 @@ class Snapshots(BaseCallback):
         self.taken: list[tuple[int, dict[str, dict[str, th.Tensor]]]] = []
 
     def _on_step(self) -> bool:
-        runner = self.model
-        if runner.num_timesteps % self.every == 0:
-            states = {
-                name: copy.deepcopy(learner.policy.sf_net.state_dict()) for name, learner in runner.learners.items()
-            }
-            self.taken.append((runner.num_timesteps, states))
+        if self.model.num_timesteps % self.every == 0:
+            self._take()
         return True
+
+    def _on_training_end(self) -> None:
+        if self.taken and self.taken[-1][0] == self.model.num_timesteps:
+            self.taken.pop()
+            self._take()
+
+    def _take(self) -> None:
+        runner = self.model
+        states = {name: copy.deepcopy(learner.policy.sf_net.state_dict()) for name, learner in runner.learners.items()}
+        self.taken.append((runner.num_timesteps, states))
 
 
 def score(runner: MultiAgentRunner, w: np.ndarray, seed: int, episodes: int, metrics: list[list[str]]) -> dict:

@@ -1,9 +1,9 @@
-"""MA-SFOLS (the paper's Algorithm 1) as an SB3 callback orchestrating the learners of a multi-agent runner.
+"""MA-SFOLS (the paper's Algorithm 1): a loop of iterations, each one the runner's training orchestrated by OLS.
 
-:class:`OLSCallback` is given to :meth:`MultiAgentRunner.learn <sb3_sfgpi.multiagent.MultiAgentRunner.learn>`.
-The runner owns the step loop (every agent's SFDQN acts, stores and trains); the callback decides the weights.
-An iteration is: every learner starts afresh for the weights the schedule gave it and trains for
-``steps_per_iteration`` joint steps; then :meth:`OLSCallback._end_iteration` runs the rest of Algorithm 1. Where
+:func:`learn_iterations` is the loop: one :meth:`MultiAgentRunner.learn <sb3_sfgpi.multiagent.MultiAgentRunner.learn>`
+per iteration, with an :class:`OLSCallback`. The runner owns the step loop (every agent's SFDQN acts, stores and
+trains); the callback gives every learner its weights when training starts, and when it ends runs the rest of
+Algorithm 1 (:meth:`OLSCallback._end_iteration`: values, OLS, Π, GPI's evaluation, the checkpoint). Where
 the weights come from is a :mod:`schedule <sb3_sfgpi.schedules>`, which new policies join Π an
 :class:`~sb3_sfgpi.admission.Admission`, how GPI is evaluated a :class:`~sb3_sfgpi.evaluation.TestEvaluation`,
 and what is written where the :class:`~sb3_sfgpi.run_directory.RunDirectory`'s business.
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
@@ -74,8 +75,6 @@ class OLSCallback(BaseCallback):
     :param run_dir: where Π, evaluations and checkpoints go (None: nowhere, or a temporary directory when the
         evaluation runs in worker processes)
     :param resume: continue from the checkpoint in ``run_dir`` if there is one
-    :param max_iterations: stop after this many iterations (None: only when the schedule ends)
-    :param progress_bar: show progress bars for the iteration and the evaluation
     :param verbose: 1 prints a line per iteration
     :param pooled: where given, every iteration's transitions are pooled and the SFs of the new policies and of every
         recorded one planned on the pool before the values are estimated (single-agent tabular runs; see
@@ -93,8 +92,6 @@ class OLSCallback(BaseCallback):
         admission: Admission | None = None,
         run_dir: RunDirectory | str | Path | None = None,
         resume: bool = False,
-        max_iterations: int | None = None,
-        progress_bar: bool = False,
         verbose: int = 0,
         pooled: PooledReplay | None = None,
     ):
@@ -103,8 +100,6 @@ class OLSCallback(BaseCallback):
             raise ValueError(f"steps_per_iteration must be positive, got {steps_per_iteration}")
         if resume and run_dir is None:
             raise ValueError("resume=True needs the run_dir to resume from")
-        if max_iterations is not None and max_iterations < 1:
-            raise ValueError(f"max_iterations must be positive or None, got {max_iterations}")
         self.admission = admission or Admission(verbose=verbose)
         if self.admission.validation_weights and evaluation.policies == "own":
             raise ValueError("policy validation scores GPI over the shared Π: not for policies='own' evaluations")
@@ -115,20 +110,21 @@ class OLSCallback(BaseCallback):
         self.pooled = pooled
         self.run_dir = run_dir if run_dir is None or isinstance(run_dir, RunDirectory) else RunDirectory(run_dir)
         self.resume = resume
-        self.max_iterations = max_iterations
-        self.progress_bar = progress_bar
+        self.max_iterations: int | None = None  # set by learn_iterations, as is progress_bar
+        self.progress_bar = False
         self.policy_set = GPIPolicy()  # Π: what GPI acts over
         self.record = GPIPolicy()  # every policy admitted to Π, those retired since included (what is saved)
         self.history: list[dict[str, Any]] = []
         self.iteration = 0
         self.weights: AgentWeights = {}
-        self.finished = False
+        #: the weights of the next iteration (None: the schedule ended; for OLS, Π's values form a CCS)
+        self.next_weights: AgentWeights | None = None
+        #: whether the last training the callback saw ran its iteration to the end (not stopped by a callback)
+        self.iteration_ended = False
         self._iteration_bar: Any = None
         self._tests: TestEvaluation | None = None
         self._policy_dir: RunDirectory | None = self.run_dir
         self._staged_policy_set: Path | None = None  # the manifest of Π as the evaluation workers load it
-        self._started = False
-        self._pending: AgentWeights | None = None  # the next weights, when a call of learn() stopped at its cap
 
     @property
     def reached_max_iterations(self) -> bool:
@@ -137,20 +133,23 @@ class OLSCallback(BaseCallback):
 
     @property
     def ended_by_schedule(self) -> bool:
-        """Whether the schedule has no more weights (for OLS: Π's values form a CCS)."""
-        return self.finished and not self.reached_max_iterations
+        """Whether the schedule has no more weights (for OLS: Π's values form a CCS) before the iteration cap."""
+        return self.next_weights is None and not self.reached_max_iterations
+
+    @property
+    def started(self) -> bool:
+        """Whether :meth:`start` ran."""
+        return self._tests is not None
 
     # --- Algorithm 1 ----------------------------------------------------------------------------------------------
-    def _on_training_start(self) -> None:
-        if not self._started:  # the first call of learn(): lines 1-4, or the checkpoint of a resumed run
-            self._started = True
-            self._start_run()
-        self.finished = self._pending is None or self.reached_max_iterations
-        if not self.finished:
-            self._start_iteration(self._pending)  # type: ignore[arg-type]
-
-    def _start_run(self) -> None:
-        runner = self.model
+    def start(self, runner: MultiAgentRunner) -> None:
+        """
+        Lines 1-4 (the evaluation, validation and the schedule set up, the first weights), or the state of a resumed
+        run's checkpoint. Once: a later call does nothing.
+        """
+        if self.started:
+            return
+        self.init_callback(runner)  # type: ignore[arg-type]
         self._tests = TestEvaluation(
             self.evaluation, runner.rollout, runner.reward_dim, runner.seed, runner.agents, runner.lockstep
         )
@@ -160,26 +159,34 @@ class OLSCallback(BaseCallback):
         )
         self.schedule.start(runner.reward_dim)
         if self.resume and self.run_dir is not None and self.run_dir.has_checkpoint():
-            self._pending = self._restore()
+            self.next_weights = self._restore()
         else:
             runner.num_timesteps = 0
-            self._pending = self._next_weights()
+            self.next_weights = self._next_weights()
         self._elapsed_before = self.history[-1]["wall_time"] if self.history else 0.0
         self._start_time = time.time()
 
+    def _on_training_start(self) -> None:
+        """Lines 6-14: every learner gets its weights (a fresh learner, or the conditioned one going on)."""
+        assert self.next_weights is not None, "start() first, and no iteration once the schedule ended"
+        self.iteration_ended = False
+        self._start_iteration(self.next_weights)
+
     def _on_step(self) -> bool:
-        if self.finished:
-            return False
         if self._iteration_bar is not None:
             self._iteration_bar.update(1)
+        return True
+
+    def _on_training_end(self) -> None:
+        """The rest of the iteration, if it ran all its steps (a callback may have stopped it, as a kill would)."""
+        if self._iteration_bar is not None:
+            self._iteration_bar.close()
         if self.model.num_timesteps - self._iteration_start >= self.steps_per_iteration:
             self._end_iteration()
-        return not self.finished
+            self.iteration_ended = True
 
     def _end_iteration(self) -> None:
         """Algorithm 1, lines 16-30: values, OLS and Π; then GPI evaluated, the checkpoint and the next weights."""
-        if self._iteration_bar is not None:
-            self._iteration_bar.close()
         self.model.end_iteration()  # line 15: the agents learned their policies and SFs
         self._pool_replay()  # with pooled replay: every policy's SFs planned on all that was seen so far
         self._follow_conditioned()  # learners conditioned on w: their members of Π take their latest SFs
@@ -192,11 +199,8 @@ class OLSCallback(BaseCallback):
         self._save_policy_set()  # before the evaluation: its worker processes load Π
         self.history.append(self._evaluate_gpi())
         self.iteration += 1
-        self._pending = self._next_weights()  # lines 6-14 of the next round
-        self._write_checkpoint(self._pending)  # last: a resumed run starts here (even at the iteration cap)
-        self.finished = self._pending is None or self.reached_max_iterations  # line 5: the queue is empty
-        if not self.finished:
-            self._start_iteration(self._pending)  # type: ignore[arg-type]
+        self.next_weights = self._next_weights()  # lines 6-14 of the next round (None, line 5: the queue is empty)
+        self._write_checkpoint(self.next_weights)  # last: a resumed run starts here (even at the iteration cap)
 
     def _pool_replay(self) -> None:
         """With pooled replay: pool the iteration's transitions, plan the new and the recorded policies' SFs on them."""
@@ -365,9 +369,6 @@ class OLSCallback(BaseCallback):
             )
         return {agent: np.asarray(w, dtype=np.float64) for agent, w in state["next_weights"].items()}
 
-    def _on_training_end(self) -> None:
-        self.close()
-
     def close(self) -> None:
         """Stop the evaluation workers (if any) and delete a temporary copy of Π. Safe to call several times."""
         if self._tests is not None:
@@ -375,3 +376,38 @@ class OLSCallback(BaseCallback):
         if self._policy_dir is not None and self._policy_dir is not self.run_dir:
             self._policy_dir.remove_temporary()
             self._policy_dir = None
+
+
+def learn_iterations(
+    runner: MultiAgentRunner,
+    ols: OLSCallback,
+    max_iterations: int | None = None,
+    callbacks: Sequence[BaseCallback] = (),
+    progress_bar: bool = False,
+) -> None:
+    """
+    Algorithm 1 as a loop: from the first weights (or a checkpoint's), every iteration is one training of the runner
+    for ``steps_per_iteration`` joint steps (line 15), which ``ols`` opens by giving the learners their weights and
+    closes with values, OLS, Π, GPI's evaluation and the checkpoint; until the schedule ends (OLS: Π is a CCS),
+    ``max_iterations`` iterations in all, or a callback stops the training.
+
+    :param runner: the learners and the env
+    :param ols: the run's OLS callback
+    :param max_iterations: iterations in all, those of a resumed run included (None: until the schedule ends)
+    :param callbacks: more runner-level callbacks (they see every joint step of every iteration)
+    :param progress_bar: show progress bars (the iterations, each iteration's steps, the evaluation)
+    """
+    if max_iterations is not None and max_iterations < 1:
+        raise ValueError(f"max_iterations must be positive or None, got {max_iterations}")
+    ols.max_iterations, ols.progress_bar = max_iterations, progress_bar
+    ols.start(runner)  # lines 1-4, or the checkpoint of a resumed run
+    bar = tqdm(total=max_iterations, initial=ols.iteration, desc="iterations", disable=not progress_bar)
+    try:
+        while ols.next_weights is not None and not ols.reached_max_iterations:
+            runner.learn(ols.steps_per_iteration, [ols, *callbacks])
+            if not ols.iteration_ended:  # a callback stopped it, as a kill would: the checkpoint before stays
+                break
+            bar.update(1)
+    finally:
+        bar.close()
+        ols.close()

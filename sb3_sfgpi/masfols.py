@@ -10,7 +10,6 @@ from its directory with :meth:`MASFOLS.load`.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,7 +20,7 @@ from pettingzoo import ParallelEnv
 from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_sfgpi.admission import Admission
-from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation
+from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation, learn_iterations
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
@@ -250,12 +249,8 @@ class MASFOLS:
             return self._learn(max_iterations, callback, progress_bar)
 
     def _learn(self, max_iterations: int | None, callback: MaybeCallback, progress_bar: bool) -> MASFOLS:
-        self.callback.max_iterations = max_iterations
-        self.callback.progress_bar = progress_bar
-        steps = self.callback.steps_per_iteration
-        total = sys.maxsize if max_iterations is None else max_iterations * steps
         extra = [] if callback is None else callback if isinstance(callback, list) else [callback]
-        self.runner.learn(total, [self.callback, *extra], progress_bar=progress_bar and max_iterations is not None)
+        learn_iterations(self.runner, self.callback, max_iterations, extra, progress_bar)
         return self
 
     @property

@@ -567,14 +567,15 @@ class MultiAgentRunner:
         self, total_timesteps: int, callback: MaybeCallback = None, progress_bar: bool = False
     ) -> MultiAgentRunner:
         """
-        Step the shared env until ``total_timesteps`` joint steps or until a callback returns False.
+        Step the shared env for ``total_timesteps`` more joint steps (one iteration of Algorithm 1: see
+        :func:`~sb3_sfgpi.callbacks.learn_iterations`), or until a callback returns False.
 
         The runner-level callback decides the learners' weights (see :class:`~sb3_sfgpi.callbacks.OLSCallback`);
         it must call :meth:`start_iteration` in its ``_on_training_start``.
 
-        :param total_timesteps: joint env steps in total (a resumed run counts those already done)
+        :param total_timesteps: joint env steps of this call
         :param callback: runner-level callback(s)
-        :param progress_bar: show a progress bar over all steps
+        :param progress_bar: show a progress bar over the steps
         """
         if isinstance(callback, list):
             callback = CallbackList(callback)
@@ -585,11 +586,10 @@ class MultiAgentRunner:
         if not self._learner_callbacks:  # no iteration started: nothing to train (e.g. a finished run was resumed)
             callback.on_training_end()
             return self
-        bar = tqdm(
-            total=total_timesteps, initial=self.num_timesteps, desc="training", unit="step", disable=not progress_bar
-        )
+        end = self.num_timesteps + total_timesteps
+        bar = tqdm(total=total_timesteps, desc="training", unit="step", disable=not progress_bar)
         try:
-            while self.num_timesteps < total_timesteps:
+            while self.num_timesteps < end:
                 keep_going = self.step()
                 bar.update(1)
                 callback.update_locals(locals())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from sfgpi_envs.domains import four_room
 
-from sb3_sfgpi.callbacks import OLSCallback
+from sb3_sfgpi.callbacks import OLSCallback, learn_iterations
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
@@ -33,10 +33,8 @@ def test_gpi_beats_a_random_policy_on_every_test_weight():
     test_weights = random_weights(3, domain["n_test_weights"], rng=0)
     learners = default_learner_factory(**domain["learner_kwargs"])
     runner = MultiAgentRunner(env, learners, seed=0, gamma=gamma, sharing=domain["sharing"])
-    callback = OLSCallback(
-        OLSSchedule(), STEPS_PER_ITERATION, EvaluationConfig(test_weights), max_iterations=ITERATIONS
-    )
-    runner.learn(ITERATIONS * STEPS_PER_ITERATION, callback)
+    callback = OLSCallback(OLSSchedule(), STEPS_PER_ITERATION, EvaluationConfig(test_weights))
+    learn_iterations(runner, callback, max_iterations=ITERATIONS)
     assert len(callback.history) == ITERATIONS
 
     random_returns = random_policy_returns(env, gamma, n_episodes=500)

@@ -7,7 +7,7 @@ import pytest
 from parallel_chain import ParallelChainEnv, make_chain_runner
 
 from sb3_sfgpi import MASFOLS
-from sb3_sfgpi.callbacks import OLSCallback
+from sb3_sfgpi.callbacks import OLSCallback, learn_iterations
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.multiagent import AgentVecEnv
@@ -18,8 +18,7 @@ TEST_WEIGHTS = random_weights(2, 5, rng=0)
 
 def test_early_finishing_agents_store_no_transitions_and_truncation_bootstraps():
     runner = make_chain_runner(max_steps=2)  # truncated after two steps, before the terminal state
-    callback = OLSCallback(OLSSchedule(), 40, EvaluationConfig(TEST_WEIGHTS), max_iterations=1)
-    runner.learn(40, callback)
+    learn_iterations(runner, OLSCallback(OLSSchedule(), 40, EvaluationConfig(TEST_WEIGHTS)), max_iterations=1)
     for learner in runner.learners.values():
         buffer = learner.replay_buffer
         n = buffer.pos

@@ -11,6 +11,7 @@ from momdp import N_ACTIONS, N_STATES, REWARD_DIM
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv
 
 from sb3_sfgpi import Admission, EvaluationConfig, MultiAgentRunner, OLSCallback
+from sb3_sfgpi.callbacks import learn_iterations
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import summarize_test_episodes
@@ -54,10 +55,8 @@ def run(
     runner = MultiAgentRunner(ParallelChainEnv(2), factory or liar_factory(liar), seed=0)
     admission = Admission(n_weights, prune=prune, together=together, verbose=verbose)
     evaluation = EvaluationConfig(TEST_WEIGHTS)
-    callback = OLSCallback(
-        RandomSchedule(), steps, evaluation, admission=admission, max_iterations=iterations, verbose=verbose, **kwargs
-    )
-    runner.learn(iterations * steps, callback)
+    callback = OLSCallback(RandomSchedule(), steps, evaluation, admission=admission, verbose=verbose, **kwargs)
+    learn_iterations(runner, callback, max_iterations=iterations)
     return callback
 
 
