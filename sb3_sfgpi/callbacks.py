@@ -155,7 +155,9 @@ class OLSCallback(BaseCallback):
         )
         validation_weights = self.admission.weights(runner.reward_dim, runner.seed)
         self.admission.start(
-            ValidationScorer(validation_weights, runner.rollout, self.admission.episodes, runner.seed, "validation")
+            ValidationScorer(
+                validation_weights, runner.rollout, self.admission.episodes, runner.seed, "validation", runner.lockstep
+            )
         )
         self.schedule.start(runner.reward_dim)
         if self.resume and self.run_dir is not None and self.run_dir.has_checkpoint():

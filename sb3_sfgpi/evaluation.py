@@ -16,7 +16,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from sb3_sfgpi.common.metrics import expected_utility
-from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, RowPolicy
+from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.serialization import jsonable
 from sb3_sfgpi.common.weights import validate_weights
@@ -27,8 +27,8 @@ from sb3_sfgpi.run_settings import RunSettings
 #: Runs a joint policy for some episodes from a seed (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.rollout`).
 Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
 #: Runs episodes for many weights together, one batched decision a step, where it can (else None): ``lockstep(policy,
-#: weights, seeds, per_result)`` (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.lockstep`).
-Lockstep = Callable[[RowPolicy, np.ndarray, list[int], int], list[EpisodeReturns] | None]
+#: weights, seeds, per_result, decided=None)`` (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.lockstep`).
+Lockstep = Callable[..., list[EpisodeReturns] | None]
 
 
 def summarize_test_episodes(

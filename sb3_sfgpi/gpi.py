@@ -419,11 +419,16 @@ class GPIPolicy:
         if numpy_tables(stacked) and self.device.type == "cpu":
             return stacked.policy_q_numpy(obs, weights[2]).transpose(1, 0, 2)
         obs_tensor = th.as_tensor(obs, device=self.device)
+        each = weights[1] if weights[1].dim() == 1 else weights[1][:, None, :]
         with th.no_grad():
-            return weighted_sum(stacked.psi(obs_tensor), weights[1]).cpu().numpy()
+            return weighted_sum(stacked.psi(obs_tensor), each).cpu().numpy()
 
     def predict_followed(
-        self, observation: np.ndarray, w: np.ndarray | Sequence[float], action_masks: np.ndarray | None = None
+        self,
+        observation: np.ndarray,
+        w: np.ndarray | Sequence[float],
+        action_masks: np.ndarray | None = None,
+        per_row: bool = False,
     ) -> tuple[np.ndarray, list[frozenset[int]]]:
         """
         GPI actions of a batch, the same as :meth:`predict`'s, and for each observation the members GPI followed: those
@@ -436,10 +441,13 @@ class GPIPolicy:
         :param observation: a batch of observations
         :param w: preference weights of length ``d``
         :param action_masks: the actions each observation has (see :meth:`predict`)
+        :param per_row: ``w`` holds one weight per observation, shape ``(batch, d)`` (as :meth:`predict_rows`)
         :return: the actions, shape ``(batch,)``, and the members followed, one set of indices per observation
         """
-        weights = self._validated_weights(w)
+        weights = self._validated_weights(w, per_row=per_row)
         obs, _ = self._obs_to_array(observation)
+        if per_row and len(weights[0]) != len(obs):
+            raise ValueError(f"one weight per observation: got {len(weights[0])} weights for {len(obs)} observations")
         q = masked(self._policy_q(obs, weights), checked_masks(action_masks, len(obs), self.action_space.n))
         best = q.max(axis=0)
         actions = best.argmax(axis=1)

@@ -525,7 +525,12 @@ class MultiAgentRunner:
         return returns
 
     def lockstep(
-        self, policy: RowPolicy, weights: np.ndarray, seeds: list[int], per_result: int = 1
+        self,
+        policy: RowPolicy,
+        weights: np.ndarray,
+        seeds: list[int],
+        per_result: int = 1,
+        decided: Callable[[list[int]], None] | None = None,
     ) -> list[EpisodeReturns] | None:
         """
         :func:`~sb3_sfgpi.common.rollouts.run_lockstep`'s episodes, the last on the shared env and the others on
@@ -535,6 +540,7 @@ class MultiAgentRunner:
         :meth:`rollout` runs the episodes.
 
         :param per_result: consecutive episodes whose returns form one result
+        :param decided: called after every decision with each row's episode (see ``run_lockstep``)
         """
         if self._env_fn is None or self.env.metadata.get(ONE_PER_PROCESS):
             return None
@@ -543,7 +549,7 @@ class MultiAgentRunner:
         while len(self._env_copies) < len(seeds) - 1:
             self._env_copies.append(as_parallel_env(self._env_fn(**self._env_kwargs)))
         envs = [*self._env_copies[: len(seeds) - 1], self.env]
-        returns = run_lockstep(envs, policy, weights, seeds, self.gamma, per_result)
+        returns = run_lockstep(envs, policy, weights, seeds, self.gamma, per_result, decided)
         self._after_rollout()
         return returns
 

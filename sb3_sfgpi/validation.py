@@ -16,12 +16,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.evaluation import Rollout, summarize_test_episodes
+from sb3_sfgpi.evaluation import Lockstep, Rollout, summarize_test_episodes
 from sb3_sfgpi.gpi import Decisions, GPIPolicy
 from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 
@@ -87,18 +88,29 @@ class ValidationScorer:
     :param episodes: episodes per weight
     :param seed: the run's seed
     :param purpose: what the episodes are for (a part of their seeds)
+    :param lockstep: runs the episodes of several weights together, one batched GPI decision a step, where it can
+        (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.lockstep`): the same episodes and decisions as one weight after
+        another
     """
 
-    def __init__(self, weights: np.ndarray, rollout: Rollout, episodes: int, seed: int, purpose: str = "validation"):
+    def __init__(
+        self,
+        weights: np.ndarray,
+        rollout: Rollout,
+        episodes: int,
+        seed: int,
+        purpose: str = "validation",
+        lockstep: Lockstep | None = None,
+    ):
         self.weights = np.asarray(weights, dtype=np.float64)
-        self.rollout, self.episodes = rollout, episodes
+        self.rollout, self.episodes, self.lockstep = rollout, episodes, lockstep
         self.seeds = [derive_seed(seed, purpose, i) for i in range(len(self.weights))]
         #: weights rolled out so far (one call of ``rollout`` each)
         self.rollouts = 0
 
     def __call__(self, policy_set: GPIPolicy) -> Scored:
         """GPI's episodes over ``policy_set`` at every weight."""
-        return self._scored([self._episodes(policy_set, i) for i in range(len(self.weights))])
+        return self._scored(self._runs(policy_set, list(range(len(self.weights)))))
 
     def replayed(self, policy_set: GPIPolicy, scored: Scored) -> Scored:
         """
@@ -109,15 +121,17 @@ class ValidationScorer:
         """
         if not isinstance(policy_set.networks[0], TabularSFNetwork):
             return self(policy_set)
-        runs = []
+        runs: list[Run | None] = []
         for i, (returns, decided) in enumerate(zip(scored.returns, scored.decisions, strict=True)):
             observations, masks, actions = decided
             again, members = (
                 policy_set.predict_followed(observations, self.weights[i], masks) if len(actions) else (actions, [])
             )
-            same = np.array_equal(again, actions)
-            runs.append((returns, frozenset(members), decided) if same else self._episodes(policy_set, i))
-        return self._scored(runs)
+            runs.append((returns, frozenset(members), decided) if np.array_equal(again, actions) else None)
+        redo = [i for i, run in enumerate(runs) if run is None]
+        for i, run in zip(redo, self._runs(policy_set, redo), strict=True):
+            runs[i] = run
+        return self._scored(runs)  # type: ignore[arg-type]
 
     def without(self, policy_set: GPIPolicy, scored: Scored, member: int) -> Scored:
         """
@@ -129,16 +143,52 @@ class ValidationScorer:
         runs = list(zip(scored.returns, followed, scored.decisions, strict=True))
         if not again:
             return Scored(scored.score, scored.returns, followed, scored.decisions)
-        rest = policy_set.without(member)
-        for i in again:
-            runs[i] = self._episodes(rest, i)
+        for i, run in zip(again, self._runs(policy_set.without(member), again), strict=True):
+            runs[i] = run
         return self._scored(runs)
+
+    def _runs(self, policy_set: GPIPolicy, indices: list[int]) -> list[Run]:
+        """The episodes of the weights ``indices``: together where the runner can, else one weight after another."""
+        together = self._together(policy_set, indices) if self.lockstep is not None and len(indices) > 1 else None
+        return together if together is not None else [self._episodes(policy_set, i) for i in indices]
+
+    def _together(self, policy_set: GPIPolicy, indices: list[int]) -> list[Run] | None:
+        """Every weight's episodes stepped together, each decision traced to its episode (None: the runner cannot)."""
+        n = self.episodes
+        traces: list[list[Decisions]] = [[] for _ in range(len(indices) * n)]
+        last: list[Any] = []
+
+        def act(obs: np.ndarray, weights: np.ndarray, masks: np.ndarray | None, _: list[str]) -> np.ndarray:
+            actions, members = policy_set.predict_followed(obs, weights, masks, per_row=True)
+            last[:] = [obs, masks, actions, members]
+            return actions
+
+        def decided(episodes: list[int]) -> None:
+            obs, masks, actions, members = last
+            for k in dict.fromkeys(episodes):  # each episode's rows, in the order run_episodes has them
+                rows = [r for r, episode in enumerate(episodes) if episode == k]
+                step_masks = None if masks is None else masks[rows]
+                traces[k].append(Decisions(obs[rows], step_masks, actions[rows], [members[r] for r in rows]))
+
+        seeds = [self.seeds[i] + episode for i in indices for episode in range(n)]
+        weights = np.repeat(self.weights[indices], n, axis=0)
+        returns = self.lockstep(act, weights, seeds, n, decided)  # type: ignore[misc]
+        if returns is None:
+            return None
+        self.rollouts += len(indices)
+        return [
+            self._run(result, [step for trace in traces[j * n : (j + 1) * n] for step in trace], policy_set)
+            for j, result in enumerate(returns)
+        ]
 
     def _episodes(self, policy_set: GPIPolicy, i: int) -> Run:
         trace: list[Decisions] = []
         self.rollouts += 1
         policy = policy_set.joint_policy(self.weights[i], trace=trace)
-        returns = self.rollout(policy, self.episodes, self.seeds[i])
+        return self._run(self.rollout(policy, self.episodes, self.seeds[i]), trace, policy_set)
+
+    def _run(self, returns: EpisodeReturns, trace: list[Decisions], policy_set: GPIPolicy) -> Run:
+        """One weight's run from its episodes' returns and decisions."""
         if not trace:  # no decision (episodes that end at reset)
             return returns, frozenset(), (np.empty((0,)), None, np.empty((0,), dtype=np.int64))
         observations = np.concatenate([step.observations for step in trace])

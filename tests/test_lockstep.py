@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import random_tabular_network
 from momdp import Fig1MOMDP
 from queue_lights import QueueLights
 
@@ -14,6 +15,7 @@ from sb3_sfgpi import MASFOLS, EvaluationConfig, GPIPolicy, PadActions
 from sb3_sfgpi.common.rollouts import run_episodes, run_lockstep
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.validation import Scored, ValidationScorer
 
 TABULAR = dict(policy="TabularPolicy", learning_rate=0.2, gamma=0.9, learning_starts=0, train_freq=1, batch_size=16)
 WEIGHTS = np.random.default_rng(0).dirichlet(np.ones(2), 5)
@@ -121,3 +123,45 @@ def test_a_conditioned_learners_members_are_valued_together_as_one_after_another
     for w, returns in zip(weights, together, strict=True):
         alone = runner.rollout(runner.learner_policy(w=w), 2, 7)
         np.testing.assert_array_equal(returns.discounted["agent_0"], alone.discounted["agent_0"])
+
+
+def _scorers() -> tuple[ValidationScorer, ValidationScorer, MultiAgentRunner]:
+    """Validation on the padded lights, one weight after another and stepped together (the runner's copies)."""
+    runner = MultiAgentRunner(padded_lights(), default_learner_factory(**TABULAR), seed=0, gamma=0.9,
+                              env_fn=padded_lights)  # fmt: skip
+    weights = np.random.default_rng(1).dirichlet(np.ones(2), 6)
+    alone = ValidationScorer(weights, runner.rollout, 2, 7)
+    together = ValidationScorer(weights, runner.rollout, 2, 7, lockstep=runner.lockstep)
+    return alone, together, runner
+
+
+def _same(one: Scored, other: Scored) -> None:
+    assert one.score == other.score and one.followed == other.followed
+    for mine, theirs in zip(one.returns, other.returns, strict=True):
+        for agent in mine.discounted:
+            np.testing.assert_array_equal(mine.discounted[agent], theirs.discounted[agent])
+    for mine, theirs in zip(one.decisions, other.decisions, strict=True):
+        for a, b in zip(mine, theirs, strict=True):
+            assert (a is None and b is None) or np.array_equal(a, b)
+
+
+@pytest.fixture(scope="module")
+def random_lights_set() -> GPIPolicy:
+    """Random tables of the padded lights: every member decides somewhere, so leave-one-out runs weights again."""
+    policy_set = GPIPolicy()
+    for seed, w in enumerate(np.random.default_rng(2).dirichlet(np.ones(2), 4)):
+        policy_set.add(random_tabular_network(seed, (3, 3, 3, 2, 2, 2), 3, 2), weights=w, agent=f"light_{seed % 2}")
+    return policy_set
+
+
+def test_validation_steps_its_weights_together_with_the_same_episodes_and_decisions(random_lights_set):
+    alone, together, runner = _scorers()
+    whole = alone(random_lights_set)
+    _same(whole, together(random_lights_set))
+    assert len(runner._env_copies) == 2 * 6 - 1  # the weights' episodes ran on copies, the last on the env
+    assert together.rollouts == alone.rollouts == 6 and len(whole.decisive_members()) > 1
+    for member in range(len(random_lights_set)):  # leave-one-out: only the weights where the member decided again
+        _same(alone.without(random_lights_set, whole, member), together.without(random_lights_set, whole, member))
+    smaller = random_lights_set.subset([0, 1])
+    _same(alone.replayed(random_lights_set, alone(smaller)), together.replayed(random_lights_set, together(smaller)))
+    assert together.rollouts == alone.rollouts > 6

@@ -159,6 +159,7 @@ def run_lockstep(
     seeds: Sequence[int],
     gamma: float,
     per_result: int = 1,
+    decided: Callable[[list[int]], None] | None = None,
 ) -> list[EpisodeReturns]:
     """
     One episode on each env, all stepped together: at every step the live agents of every episode act by one call
@@ -171,6 +172,7 @@ def run_lockstep(
     :param seeds: each episode's seed
     :param gamma: discount factor of the discounted returns
     :param per_result: consecutive episodes whose returns form one result (the episodes of one weight)
+    :param decided: called after every call of ``policy`` with the episode (index into ``envs``) of each row
     :return: the returns of each ``per_result`` consecutive episodes
     """
     if not len(envs) == len(weights) == len(seeds):
@@ -185,6 +187,8 @@ def run_lockstep(
         row_weights = np.asarray(weights)[[stepped[j][0] for j, _ in rows]]
         agents = [agent for _, agent in rows]
         actions = policy(obs, row_weights, _row_masks(episodes, stepped, rows), agents).tolist()
+        if decided is not None:
+            decided([stepped[j][0] for j, _ in rows])
         joint: list[dict[str, Any]] = [{} for _ in stepped]
         for (j, agent), action in zip(rows, actions, strict=True):
             joint[j][agent] = action
