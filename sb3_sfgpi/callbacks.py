@@ -198,7 +198,7 @@ class OLSCallback(BaseCallback):
             if self.schedule.add(value, self.weights[name])  # lines 20-21, 23-28: a new value: OLS's corner weights
         ]
         self.policy_set = self.admission.admit(self.record, candidates, self.iteration + 1)  # line 22: Π
-        self._save_policy_set()  # before the evaluation: its worker processes load Π
+        self._stage_policy_set()  # before the evaluation: its worker processes load Π
         self.history.append(self._evaluate_gpi())
         self.iteration += 1
         self.next_weights = self._next_weights()  # lines 6-14 of the next round (None, line 5: the queue is empty)
@@ -318,7 +318,7 @@ class OLSCallback(BaseCallback):
             )
 
     # --- run directory --------------------------------------------------------------------------------------------
-    def _save_policy_set(self) -> None:
+    def _stage_policy_set(self) -> None:
         """Stage Π in the run directory (its checkpoint commits it), or a temporary one for evaluation workers."""
         if self._policy_dir is None and self.evaluation.workers > 0:
             self._policy_dir = RunDirectory.temporary()  # the workers load Π from disk

@@ -446,8 +446,8 @@ class GPIPolicy:
         """
         weights = self._validated_weights(w, per_row=per_row)
         obs, _ = self._obs_to_array(observation)
-        if per_row and len(weights[0]) != len(obs):
-            raise ValueError(f"one weight per observation: got {len(weights[0])} weights for {len(obs)} observations")
+        if per_row:
+            _check_one_weight_per_row(weights[0], obs)
         q = masked(self._policy_q(obs, weights), checked_masks(action_masks, len(obs), self.action_space.n))
         best = q.max(axis=0)
         actions = best.argmax(axis=1)
@@ -500,8 +500,7 @@ class GPIPolicy:
         """
         rows = self._validated_weights(weights, per_row=True)
         obs, _ = self._obs_to_array(observations)
-        if len(rows[0]) != len(obs):
-            raise ValueError(f"one weight per observation: got {len(rows[0])} weights for {len(obs)} observations")
+        _check_one_weight_per_row(rows[0], obs)
         masks = checked_masks(action_masks, len(obs), self.action_space.n)
         return masked(self._gpi_q(obs, rows), masks).argmax(axis=1)
 
@@ -571,3 +570,9 @@ class GPIPolicy:
         except (KeyError, TypeError, ValueError, RuntimeError) as error:
             raise CorruptPolicySetError(f"cannot load the policy set in {path}: {error}") from error
         return policy_set.to(device)
+
+
+def _check_one_weight_per_row(weights: np.ndarray, obs: np.ndarray) -> None:
+    """Refuse per-row weights that are not one per observation."""
+    if len(weights) != len(obs):
+        raise ValueError(f"one weight per observation: got {len(weights)} weights for {len(obs)} observations")

@@ -589,7 +589,7 @@ class MultiAgentRunner:
             raise ValueError("MultiAgentRunner.learn needs a runner-level callback such as OLSCallback")
         callback.init_callback(self)  # type: ignore[arg-type]
         callback.on_training_start(locals(), globals())
-        if not self._learner_callbacks:  # no iteration started: nothing to train (e.g. a finished run was resumed)
+        if not self._learner_callbacks:  # no callback started an iteration: nothing to train
             callback.on_training_end()
             return self
         end = self.num_timesteps + total_timesteps

@@ -38,16 +38,13 @@ import tempfile
 import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from sb3_sfgpi.common.serialization import atomic_write_bytes, atomic_write_json, read_json
 from sb3_sfgpi.run_lock import RunDirectoryBusy, RunLock, check_not_written
 from sb3_sfgpi.trust import check_learner_kwargs
-
-if TYPE_CHECKING:
-    pass
 
 #: The file of a policy-set directory that describes the set and names its other files (see
 #: :mod:`sb3_sfgpi.policy_set_files`).

@@ -49,7 +49,7 @@ def commit_policy_set(run_dir: RunDirectory) -> None:
     """
     staged = run_dir.policy_set_dir / STAGED_MANIFEST
     if staged.is_file():
-        if _checkpoint_names(run_dir, staged):
+        if _is_named(staged, _named(run_dir)):
             staged.replace(run_dir.policy_set_dir / MANIFEST)
         else:
             staged.unlink()
@@ -64,10 +64,11 @@ def policy_set_manifest(run_dir: RunDirectory) -> Path | None:
     :raises ValueError: neither manifest is the one the checkpoint names
     """
     committed, staged = run_dir.policy_set_dir / MANIFEST, run_dir.policy_set_dir / STAGED_MANIFEST
-    if not run_dir.has_checkpoint() or run_dir.read_checkpoint().get("policy_set") is None:
+    named = _named(run_dir)
+    if named is None:
         return committed if committed.is_file() else None
     for manifest in (committed, staged):
-        if _checkpoint_names(run_dir, manifest):
+        if _is_named(manifest, named):
             return manifest
     raise ValueError(f"{run_dir.policy_set_dir} does not hold the policy set that {run_dir.CHECKPOINT} names")
 
@@ -103,8 +104,13 @@ def load_policy_set(
     return policy_set if record else policy_set.members()
 
 
-def _checkpoint_names(run_dir: RunDirectory, manifest: Path) -> bool:
-    named = run_dir.read_checkpoint().get("policy_set") if run_dir.has_checkpoint() else None
+def _named(run_dir: RunDirectory) -> str | None:
+    """The digest of the Π the run's checkpoint names (None: no checkpoint, or one that names no set)."""
+    return run_dir.read_checkpoint().get("policy_set") if run_dir.has_checkpoint() else None
+
+
+def _is_named(manifest: Path, named: str | None) -> bool:
+    """Whether ``manifest`` is there and is the one of digest ``named``."""
     return named is not None and manifest.is_file() and _digest(manifest) == named
 
 
