@@ -41,15 +41,16 @@ LEARNER_ARGUMENTS = frozenset(
         "device",
     }
 )
-#: Policy arguments a run file may set (``net_arch``: a list of layer widths).
-POLICY_ARGUMENTS = frozenset({"net_arch"})
+#: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads``: a conditioned network's).
+POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads"})
 _MAX_WIDTH = 1 << 16
+_MAX_HEADS = 16
 
 
 def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
     """
     Refuse learner arguments of a run file that are not on :data:`LEARNER_ARGUMENTS` (or, in ``policy_kwargs``, on
-    :data:`POLICY_ARGUMENTS`, ``net_arch`` a short list of positive widths).
+    :data:`POLICY_ARGUMENTS`, ``net_arch`` a short list of positive widths, ``n_heads`` a small positive count).
 
     :param source: the file, named in the error
     :raises ValueError: naming the argument
@@ -69,6 +70,9 @@ def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
         and all(isinstance(n, int) and not isinstance(n, bool) and 0 < n <= _MAX_WIDTH for n in net_arch)
     ):
         raise ValueError(f"{source}: 'net_arch' must be a list of at most 16 widths in [1, {_MAX_WIDTH}]")
+    n_heads = policy_kwargs.get("n_heads", 1)
+    if isinstance(n_heads, bool) or not isinstance(n_heads, int) or not 1 <= n_heads <= _MAX_HEADS:
+        raise ValueError(f"{source}: 'n_heads' must be an integer in [1, {_MAX_HEADS}], got {n_heads!r}")
 
 
 def refuse_unlisted(kwargs: Mapping[str, Any], allowed: Collection[str], what: str, whose: str) -> None:

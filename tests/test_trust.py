@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,7 @@ from shared_runs import edited
 
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.masfols import MASFOLS
+from sb3_sfgpi.trust import check_learner_kwargs
 
 #: A traffic run of seconds: 20 simulated seconds, 8 steps, one test weight, no workers.
 TINY_TRAFFIC = [
@@ -94,6 +96,8 @@ def test_an_option_given_again_on_the_command_line_vouches_for_the_run_file(four
         ({"policy_kwargs": {"activation_fn": "Tanh"}}, "policy argument 'activation_fn' is not taken"),
         ({"policy_kwargs": {"net_arch": [10**9]}}, "'net_arch' must be a list of at most 16 widths"),
         ({"policy_kwargs": [1]}, "'policy_kwargs' must be an object"),
+        ({"policy_kwargs": {"n_heads": 0}}, "'n_heads' must be an integer in [1, 16], got 0"),
+        ({"policy_kwargs": {"n_heads": True}}, "'n_heads' must be an integer in [1, 16], got True"),
     ],
 )
 def test_a_run_file_sets_only_allowed_learner_arguments(four_room_run, tmp_path, capsys, learner, message):
@@ -105,5 +109,16 @@ def test_a_run_file_sets_only_allowed_learner_arguments(four_room_run, tmp_path,
     ):
         assert main(argv) == 2
         assert message in capsys.readouterr().err
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValueError, match=re.escape(message)):
         MASFOLS.load(copy, env=None)
+
+
+def test_train_refuses_up_front_a_learner_argument_its_resume_would_refuse(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main([*TINY_FOUR_ROOM, "--learner", "tensorboard_log=elsewhere", "--out", str(out)]) == 2
+    assert "--learner: learner argument 'tensorboard_log' is not taken from a run file" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_conditioned_networks_head_count_is_taken_from_a_run_file():
+    check_learner_kwargs({"policy_kwargs": {"net_arch": [8], "n_heads": 2}}, "run.json")  # resumable

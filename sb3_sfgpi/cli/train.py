@@ -19,6 +19,7 @@ from sb3_sfgpi.cli.settings import SETTABLE, check_resumed, method_settings
 from sb3_sfgpi.cli.values import check_weights, key_values
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_settings import RunSettings
+from sb3_sfgpi.trust import check_learner_kwargs
 
 if TYPE_CHECKING:
     from sb3_sfgpi.masfols import MASFOLS
@@ -175,6 +176,7 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> tuple[dict[st
         "weights": ALGORITHMS.get(args.algo) or check_weights(args.w, "--w"),
         **settings,
     }
+    check_learner_kwargs(learner_kwargs, "--learner")  # what a resume would refuse, refused before the run starts
     if args.algo == "fixed":
         config.update(_fixed_budget(args, iterations, steps_per_iteration))
     return config, given
