@@ -2,7 +2,7 @@
 
 The model is the experience of one agent of ``FourRoomParallelEnv`` (the ``four-room`` preset's ``"own"``
 observations: cell and own collected objects, a table of 2.8 million rows) acting uniformly at random for
-``N`` joint steps. The candidate is :meth:`~sb3_sfgpi.sfdqn.planning.EmpiricalModel.sweep`, which works on a
+``N`` joint steps. The candidate is :meth:`~sb3_sfgpi.tabular.planning.EmpiricalModel.sweep`, which works on a
 contiguous copy of the rows the sweeps touch, of a table holding its stored rows; the baseline is the backup it
 replaced, written here on a dense table: the same Jacobi sweeps indexing the whole table at every sweep (greedy
 actions read per outcome, one ``bincount`` per objective). Both start from the same table (optimistic values, as the
@@ -16,9 +16,9 @@ import numpy as np
 from sfgpi_envs.four_room import FourRoomParallelEnv
 
 from benchmarks._common import Row, fmt_time, interleaved_samples, paired_ratio
-from sb3_sfgpi.sfdqn.networks import TabularSFNetwork, greedy_entries
-from sb3_sfgpi.sfdqn.planning import TOLERANCE, EmpiricalModel, Experience
-from sb3_sfgpi.sfdqn.sparse import SparseTable
+from sb3_sfgpi.tabular.network import TabularSFNetwork, greedy_entries
+from sb3_sfgpi.tabular.planning import TOLERANCE, EmpiricalModel, Experience
+from sb3_sfgpi.tabular.sparse import SparseTable
 
 NAME = "planning"
 WEIGHTS = np.array([0.4, 0.59, 0.01], dtype=np.float32)

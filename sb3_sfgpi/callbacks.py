@@ -29,14 +29,14 @@ from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
-from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.run_policy_set import commit_policy_set, load_policy_set, stage_policy_set, staged_digest
 from sb3_sfgpi.run_settings import VALUE_MODES, RunSettings
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
-from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.training_state import training_state
+from sb3_sfgpi.tabular.network import TabularSFNetwork
+from sb3_sfgpi.tabular.pooling import PooledReplay
 from sb3_sfgpi.validation import ValidationScorer
 
 
@@ -78,7 +78,7 @@ class OLSCallback(BaseCallback):
     :param verbose: 1 prints a line per iteration
     :param pooled: where given, every iteration's transitions are pooled and the SFs of the new policies and of every
         recorded one planned on the pool before the values are estimated (single-agent tabular runs; see
-        :mod:`sb3_sfgpi.pooling`); the run directory keeps what each iteration added
+        :mod:`sb3_sfgpi.tabular.pooling`); the run directory keeps what each iteration added
     """
 
     model: MultiAgentRunner  # type: ignore[assignment]
@@ -208,7 +208,10 @@ class OLSCallback(BaseCallback):
         """With pooled replay: pool the iteration's transitions, plan the new and the recorded policies' SFs on them."""
         if self.pooled is None:
             return
-        added = self.pooled.add_learners(self.model.learners.values())
+        added = self.pooled.add_experiences(
+            learner.policy.experience(learner.replay_buffer)
+            for learner in self.model.learners.values()  # type: ignore[attr-defined, operator]
+        )
         if self.run_dir is not None:
             self.run_dir.write_experience(self.iteration + 1, added.arrays())
         learners = list(self.model.learners.values())

@@ -46,9 +46,9 @@ from sb3_sfgpi.ols import OLS, TOLERANCE
 from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_spec
 from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
-from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 from sb3_sfgpi.stacking import LeaveOneOut, Stacked, numpy_tables, stack_networks
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 
 __all__ = ["MANIFEST", "CorruptPolicySetError", "Decisions", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
 

@@ -9,14 +9,22 @@ signature.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
 from sb3_sfgpi.common.weights import validate_weights
 
-if TYPE_CHECKING:
-    from sb3_sfgpi.gpi import GPIPolicy
+
+class WeightedPolicySet(Protocol):
+    """What a :class:`GPIPredictor` needs of its set (:class:`~sb3_sfgpi.gpi.GPIPolicy` is one)."""
+
+    @property
+    def reward_dim(self) -> int: ...
+
+    def __len__(self) -> int: ...
+
+    def predict(self, observation: np.ndarray, w: np.ndarray, *args: Any, **kwargs: Any) -> Any: ...
 
 
 class GPIPredictor:
@@ -30,7 +38,7 @@ class GPIPredictor:
     :raises ValueError: bad weights or an empty set
     """
 
-    def __init__(self, policy_set: GPIPolicy, w: np.ndarray | Sequence[float]):
+    def __init__(self, policy_set: WeightedPolicySet, w: np.ndarray | Sequence[float]):
         self.policy_set = policy_set
         self._weights = validate_weights(w, policy_set.reward_dim)
 

@@ -25,13 +25,13 @@ from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory, replay_sized
-from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_logger import run_logger
 from sb3_sfgpi.run_settings import GAMMA, RunSettings, acts_by_own_policies
 from sb3_sfgpi.schedules import make_schedule
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
+from sb3_sfgpi.tabular.pooling import PooledReplay
 
 
 class MASFOLS:
@@ -60,7 +60,7 @@ class MASFOLS:
     :param admission: which new policies join Π (default: every one, as in the paper)
     :param pool_replay: pool the transitions of every iteration into one empirical model and, after every iteration,
         plan the SF tables of the new policies and of Π's on it for their own weights, before the values are
-        estimated and validation scores GPI (see :mod:`sb3_sfgpi.pooling`). Single-agent envs (one agent: its
+        estimated and validation scores GPI (see :mod:`sb3_sfgpi.tabular.pooling`). Single-agent envs (one agent: its
         dynamics do not depend on the policy) and ``TabularPolicy`` only; the run directory keeps what each
         iteration added, so that a resumed run is the same
     :param evaluation: how GPI is evaluated after every iteration: its ``test_weights`` are an array ``(n, d)``, a

@@ -21,7 +21,8 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
-from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork, observation_radices
+from sb3_sfgpi.sfdqn.networks import SFNetwork
+from sb3_sfgpi.tabular.network import TabularSFNetwork, observation_radices
 
 _ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
 

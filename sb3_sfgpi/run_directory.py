@@ -14,8 +14,8 @@ Layout (no other module spells these names)::
     learners/          with learners that go on across iterations (``ConditionedMlpPolicy``): their state after the
                        checkpoint's iteration (``iteration_003.pt``: tensors and plain numbers, see
                        :mod:`sb3_sfgpi.sfdqn.training_state`)
-    experience/        with pooled replay (:mod:`sb3_sfgpi.pooling`): per iteration, the transitions its learners
-                       added to the pool (``iteration_001.npz``, ...: counts per (s, a, s'), plain arrays)
+    experience/        with pooled replay (:mod:`sb3_sfgpi.tabular.pooling`): per iteration, the transitions its
+                       learners added to the pool (``iteration_001.npz``, ...: counts per (s, a, s'), plain arrays)
     logs/              the runner's SB3 logger (progress.csv, TensorBoard scalars of OLS and GPI)
     tensorboard/       the learners' TensorBoard logs, one folder per agent and iteration
     compare.json       what ``sb3-sfgpi compare`` wrote (by default)

@@ -21,7 +21,8 @@ from torch.func import functional_call, stack_module_state
 
 from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.policy_files import _ACTIVATIONS
-from sb3_sfgpi.sfdqn.networks import SFNetwork, TabularSFNetwork
+from sb3_sfgpi.sfdqn.networks import SFNetwork
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 
 
 class StackedTables:

@@ -24,7 +24,7 @@ from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.evaluation import Lockstep, Rollout, summarize_test_episodes
 from sb3_sfgpi.gpi import Decisions, GPIPolicy
-from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 
 #: One weight's decisions, every agent, decision and episode in order: observations, action masks (None: the env
 #: gives none), actions.

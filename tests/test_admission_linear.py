@@ -22,7 +22,7 @@ from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.sfdqn.networks import TabularSFNetwork
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 from sb3_sfgpi.validation import Scored, ValidationScorer
 
 

@@ -28,7 +28,7 @@ from sb3_sfgpi.common.metrics import expected_utility
 from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.ols import OLS
-from sb3_sfgpi.sfdqn.networks import TabularSFNetwork, greedy_entries
+from sb3_sfgpi.tabular.network import TabularSFNetwork, greedy_entries
 
 PROPERTY_SETTINGS = settings(max_examples=40, deadline=None, database=None)
 ROOT = Path(__file__).resolve().parents[1]

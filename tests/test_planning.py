@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from momdp import N_STATES, REWARDS, TERMINAL, Fig1MOMDP, all_observations, optimal_value, successor_features
 
 from sb3_sfgpi.sfdqn import SFDQN
-from sb3_sfgpi.sfdqn.planning import TOLERANCE, Experience
-from sb3_sfgpi.sfdqn.sparse import SparseTable
+from sb3_sfgpi.tabular.planning import TOLERANCE, Experience
+from sb3_sfgpi.tabular.sparse import SparseTable
 
 
 def sparse(table: np.ndarray, n_actions: int, default: float = 0.0) -> SparseTable:

@@ -17,11 +17,11 @@ from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.policy_files import file_state
-from sb3_sfgpi.pooling import PooledReplay
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_policy_set import load_policy_set
 from sb3_sfgpi.sfdqn import TabularSFNetwork
-from sb3_sfgpi.sfdqn.planning import Experience
+from sb3_sfgpi.tabular.planning import Experience
+from sb3_sfgpi.tabular.pooling import PooledReplay
 
 mo = pytest.importorskip("mo_gymnasium")
 

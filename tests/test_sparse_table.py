@@ -13,10 +13,10 @@ from hypothesis import strategies as st
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.sfdqn import sparse
-from sb3_sfgpi.sfdqn.networks import greedy_entries
-from sb3_sfgpi.sfdqn.policies import TabularPolicy
-from sb3_sfgpi.sfdqn.sparse import INITIAL_CAPACITY, SparseTable
+from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
+from sb3_sfgpi.tabular import sparse
+from sb3_sfgpi.tabular.network import greedy_entries
+from sb3_sfgpi.tabular.sparse import INITIAL_CAPACITY, SparseTable
 
 #: 13 x 13 cells and 6 flags: 10,816 rows, of which a test visits a few hundred
 SPACE = spaces.MultiDiscrete([13, 13, 2, 2, 2, 2, 2, 2])

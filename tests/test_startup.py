@@ -106,7 +106,7 @@ def test_evaluate_and_compare_refuse_bad_input_before_importing_torch(run, tmp_p
 
 
 def test_a_tabular_run_imports_neither_torch_dynamo_nor_sympy(tmp_path):
-    """A table's learning rate lives in :class:`~sb3_sfgpi.sfdqn.policies.StepSize`: a torch optimizer would import
-    ``torch._dynamo`` and SymPy (68 MB of the main job's peak, 1.5 s) for a placeholder never stepped."""
+    """A table's learning rate lives in :class:`~sb3_sfgpi.sfdqn.tabular_policy.StepSize`: a torch optimizer would
+    import ``torch._dynamo`` and SymPy (68 MB of the main job's peak, 1.5 s) for a placeholder never stepped."""
     steps = [("main train", [*TRAIN, *TINY, "--out", str(tmp_path / "run")])]
     assert probe(steps, ("torch._dynamo", "sympy")) == {"main train": [0, []]}

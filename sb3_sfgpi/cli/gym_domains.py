@@ -4,7 +4,7 @@ A domain the entry points do not name is looked up in Gymnasium's registry (MO-G
 ``mo_gymnasium`` is installed). Its env must follow MO-Gymnasium's convention (a ``reward_space`` Box of shape
 ``(d,)``). The learners are tables where the observations are small integers (the planning and relative optimism of
 the Four-Room presets, read against the env's own reward scale; every policy's table planned on the run's pooled
-replay, :mod:`sb3_sfgpi.pooling`), else MLPs.
+replay, :mod:`sb3_sfgpi.tabular.pooling`), else MLPs.
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ TABULAR_LEARNER = {
     "planning_sweeps": 60,
     "optimistic_init": "rmax_1.25",
 }
-#: Whether runs with tables pool their replay across iterations and plan Π's SFs on it (:mod:`sb3_sfgpi.pooling`;
-#: measured on the known-front problems: docs, experiments/known_fronts).
+#: Whether runs with tables pool their replay across iterations and plan Π's SFs on it
+#: (:mod:`sb3_sfgpi.tabular.pooling`; measured on the known-front problems: docs, experiments/known_fronts).
 TABULAR_POOL_REPLAY = True
 #: Deep learners (observations a table cannot hold): one network ψ(s, a, w) per agent for the whole run, trained over
 #: OLS's weights and acting by GPI over them (``ConditionedMlpPolicy``), with GPI-LS's minecart settings (γ 0.98,
@@ -120,7 +120,7 @@ def _made(env_id: str) -> gym.Env:
 
 def _n_states(observation_space: gym.Space) -> float:
     """How many observations a table would need (infinity for a space a table cannot hold)."""
-    from sb3_sfgpi.sfdqn.networks import observation_radices
+    from sb3_sfgpi.tabular.network import observation_radices
 
     try:
         _, n_values = observation_radices(observation_space)

@@ -53,7 +53,7 @@ class DomainPreset:
     :param admit_together: also try an iteration's policies left out by validation together (with
         ``validation_weights > 0``)
     :param pool_replay: plan every policy's SF table on the transitions of every iteration, pooled (single-agent
-        tabular domains; see :mod:`sb3_sfgpi.pooling`)
+        tabular domains; see :mod:`sb3_sfgpi.tabular.pooling`)
     :param sharing: ``"independent"`` (one learner per agent) or ``"shared"`` (one learner that every agent acts
         with and feeds; see :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`)
     :param eval_workers: default number of evaluation processes

@@ -12,7 +12,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.sfdqn.policies import TabularPolicy
+from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
 
 
 def learning_rate_schedule(learning_rate: float | str | Schedule) -> float | str | Schedule:

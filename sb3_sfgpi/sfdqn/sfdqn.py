@@ -32,12 +32,11 @@ from sb3_sfgpi.sfdqn.options import (
     learning_rate_schedule,
     optimistic_value,
 )
-from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy, TabularPolicy
+from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy
+from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
+from sb3_sfgpi.tabular.planning import SETTLE_SWEEPS
 
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
-
-#: Most sweeps :meth:`SFDQN.remove_optimism` does (far more than planning needs to reach its tolerance at γ = 0.99).
-SETTLE_SWEEPS = 10_000
 
 
 class SFDQN(OffPolicyAlgorithm):
@@ -80,7 +79,7 @@ class SFDQN(OffPolicyAlgorithm):
     :param max_grad_norm: The maximum value for the gradient clipping (not used by the tabular policy)
     :param planning_sweeps: Dyna-style planning (``TabularPolicy`` only): every ``planning_interval`` env steps,
         up to this many sweeps of the SF backup over every pair recorded in the replay buffer
-        (:meth:`~sb3_sfgpi.sfdqn.policies.TabularPolicy.plan`); 0 for none
+        (:meth:`~sb3_sfgpi.sfdqn.tabular_policy.TabularPolicy.plan`); 0 for none
     :param planning_interval: Env steps between two plannings
     :param optimistic_init: optimistic initial values (``TabularPolicy`` with planning only; 0 for none): every
         entry of the table starts at this value, so the greedy behaviour tries the pairs it has not tried yet, and
@@ -489,8 +488,8 @@ class SFDQN(OffPolicyAlgorithm):
         """
         Remove the optimistic initial values (``optimistic_init``; nothing to do without): the pairs not in the
         replay buffer get ``ψ = 0``, and the recorded ones are planned until no entry moves by more than
-        :data:`~sb3_sfgpi.sfdqn.planning.TOLERANCE` (at most :data:`SETTLE_SWEEPS` sweeps). Called at the end of
-        :meth:`learn`; a later :meth:`learn` goes on from that table, without optimism.
+        :data:`~sb3_sfgpi.tabular.planning.TOLERANCE` (at most :data:`~sb3_sfgpi.tabular.planning.SETTLE_SWEEPS`
+        sweeps). Called at the end of :meth:`learn`; a later :meth:`learn` goes on from that table, without optimism.
         """
         if self.optimistic_value:
             self.policy.plan(self.replay_buffer, self.gamma, SETTLE_SWEEPS, untried_value=0.0)  # type: ignore[attr-defined]

@@ -22,10 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from sb3_sfgpi.common.weights import weighted_sum
-from sb3_sfgpi.sfdqn.sparse import SparseTable
+from sb3_sfgpi.tabular.sparse import SparseTable
 
 #: Sweeps stop once no entry of ψ moves by more than this.
 TOLERANCE = 1e-6
+#: Most sweeps a table is settled with (SFDQN's ``remove_optimism``, pooled replay): far more than planning needs to
+#: reach :data:`TOLERANCE` at γ = 0.99.
+SETTLE_SWEEPS = 10_000
 
 
 @dataclass(frozen=True)

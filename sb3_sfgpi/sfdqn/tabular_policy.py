@@ -1,0 +1,262 @@
+"""The SB3 policy of a tabular SFDQN: the table of :mod:`sb3_sfgpi.tabular`, its ε-greedy read and its TD update."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.type_aliases import Schedule
+from stable_baselines3.common.utils import is_vectorized_observation
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.sfdqn.networks import argmax_random_ties
+from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
+from sb3_sfgpi.tabular.network import TabularSFNetwork, greedy_entries
+from sb3_sfgpi.tabular.planning import Experience, plan_table
+
+
+class StepSize:
+    """
+    The optimizer of a table: the learning rate ``α`` in ``param_groups``, as SB3's schedules set it.
+
+    :meth:`TabularPolicy.td_update` updates the table in place, so there is nothing to optimise; a torch optimizer
+    would only hold ``α``, and building one imports ``torch._dynamo`` and SymPy (68 MB and 1.5 s of every tabular
+    run). The state dict has ``torch.optim.SGD``'s layout: models saved with either load with either.
+
+    :param params: ignored (a table has no torch parameters), as an optimizer's first argument
+    :param lr: the learning rate ``α``
+    """
+
+    def __init__(self, params: Any = (), lr: float = 0.1) -> None:
+        self.param_groups = [{"lr": float(lr), "params": []}]  # SB3's load reads the number of params
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"state": {}, "param_groups": [{"lr": self.param_groups[0]["lr"], "params": [0]}]}
+
+    def load_state_dict(self, state_dict: dict[str, Any], strict: bool = True) -> None:
+        """Read ``α`` from a state dict of this class or of a torch optimizer with one parameter group."""
+        try:
+            (group,) = state_dict["param_groups"]
+            lr = float(group["lr"])
+        except (KeyError, TypeError, ValueError) as error:
+            message = f"a tabular policy's optimizer state needs one parameter group with an 'lr': {error}"
+            raise ValueError(message) from None
+        if not np.isfinite(lr) or lr < 0:
+            raise ValueError(f"a tabular policy's learning rate must be a finite number >= 0, got {lr}")
+        self.param_groups[0]["lr"] = lr
+
+
+class TabularPolicy(SFDQNPolicy):
+    """
+    Tabular successor features: multi-objective Q-learning with experience replay.
+
+    Each sampled transition moves its entry by ``α · (target − ψ)`` with ``α`` the learning rate: the SGD step
+    on ``0.5 · Σ_batch ||target − ψ(s, a)||²``, exactly the tabular update of the paper (Table 1: α = 0.1).
+    By default there is no separate target network (``target_network=False``): targets read the table itself,
+    as in Q-learning.
+
+    The table starts at zero, so every action of a state not learned yet ties: the behaviour policy breaks ties at
+    random (``greedy(..., random_ties=True)``), which keeps its greedy steps exploring there; the learned policy
+    (TD target, ``predict(deterministic=True)``) takes the first of tied actions.
+
+    :param observation_space: a small integer observation space
+    :param action_space: Action space (Discrete)
+    :param lr_schedule: Learning rate schedule (``α``)
+    :param reward_dim: Number of objectives ``d``
+    :param target_network: Keep a separate, periodically copied target table
+    :param optimizer_class: What holds the learning rate ``α`` (:class:`StepSize` by default; a torch optimizer
+        class also serves, never stepped: :meth:`td_update` updates the table in place)
+    :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate
+    """
+
+    sf_net: TabularSFNetwork
+    sf_net_target: TabularSFNetwork
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        reward_dim: int,
+        target_network: bool = False,
+        optimizer_class: type[th.optim.Optimizer] | type[StepSize] = StepSize,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ):
+        self.target_network = target_network
+        super().__init__(
+            observation_space,
+            action_space,
+            lr_schedule,
+            reward_dim,
+            net_arch=[],
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+        )
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        self.sf_net = self.make_sf_net()
+        if self.target_network:
+            self.sf_net_target = self.make_sf_net()
+            self.sf_net_target.load_state_dict(self.sf_net.state_dict())
+        else:
+            self.sf_net_target = self.sf_net
+        # The optimizer only holds α, which SB3's schedules set in its param groups; the table (numpy) has no torch
+        # parameters and a torch optimizer refuses an empty list, so it gets an empty placeholder, never stepped.
+        self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
+            [th.empty(0, requires_grad=True)], lr=lr_schedule(1), **self.optimizer_kwargs
+        )
+
+    def make_sf_net(self) -> TabularSFNetwork:  # type: ignore[override]
+        """A new zero-initialised SF table."""
+        return TabularSFNetwork(self.observation_space, self.action_space, self.reward_dim).to(self.device)  # type: ignore[arg-type]
+
+    def greedy(
+        self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
+    ) -> tuple[np.ndarray, bool]:
+        """``argmax_a w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.greedy`)."""
+        q_values, vectorized = self.q_values(observation, weights)
+        return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
+
+    def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+        """``w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.q_values`)."""
+        net = self.sf_net
+        # SB3's is_vectorized_observation, without its image-transpose step (integer spaces are never images).
+        vectorized = is_vectorized_observation(observation, self.observation_space)
+        obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
+        psi = net.table.values.reshape(-1, net.n_actions, self.reward_dim)[net.table.slots(net.rows(obs))]
+        return weighted_sum(psi, np.asarray(weights, dtype=np.float32)), vectorized
+
+    def fill(self, value: float) -> None:
+        """
+        Set every entry of the table (and of its target) to ``value``: optimistic initial values when ``value`` is
+        above what the policy can get.
+
+        :param value: the value of every component of ``ψ(s, a)``, for every pair
+        """
+        self.sf_net.table.fill(value)
+        if self.sf_net_target is not self.sf_net:
+            self.sf_net_target.table.fill(value)
+
+    def experience(self, replay_buffer: MOReplayBuffer) -> Experience:
+        """
+        The transitions of ``replay_buffer``, condensed for planning (see :class:`Experience`).
+
+        :raises ValueError: the buffer holds action masks: planning backs up every action's value
+        """
+        if replay_buffer.next_forbidden is not None:
+            raise ValueError(
+                "planning (planning_sweeps, pool_replay) does not take action masks (the env gives "
+                "info['action_mask']): turn it off"
+            )
+        net = self.sf_net
+        obs, actions, next_obs, dones, rewards = replay_buffer.stored_arrays()
+        rows, next_rows = net.rows(obs, check=False), net.rows(next_obs, check=False)
+        return Experience.from_transitions(rows, actions, next_rows, dones, rewards, net.table.n_rows, net.n_actions)
+
+    def plan(
+        self, replay_buffer: MOReplayBuffer, gamma: float, max_sweeps: int, untried_value: float | None = None
+    ) -> int:
+        """
+        Dyna-style planning: sweeps of the SF backup over every pair recorded in the replay buffer (see
+        :class:`~sb3_sfgpi.tabular.planning.EmpiricalModel`); a separate target table is then set to the result.
+
+        :param replay_buffer: the transitions that make the model
+        :param gamma: discount factor
+        :param max_sweeps: most sweeps to do
+        :param untried_value: if given, every pair not recorded in the buffer first gets ``ψ`` of this value in
+            each component (0: what a fresh table holds), so that the sweeps back up no other value for them
+        :return: the number of sweeps done
+        """
+        model = self.experience(replay_buffer).model()
+        sweeps = plan_table(self.sf_net.table, model, self.weights.numpy(), gamma, max_sweeps, untried_value)
+        self.update_target()
+        return sweeps
+
+    def update_target(self, tau: float = 1.0) -> None:
+        """
+        Move the target table (if separate) towards the online one, every row: ``(1 − τ) · target + τ · online``
+        (``τ = 1``: a copy).
+        """
+        online, target = self.sf_net.table, self.sf_net_target.table
+        if target is online:
+            return
+        target.store(online.stored_rows())
+        values, rows = target.values, target.stored_rows()
+        values[: len(rows)] = (1 - tau) * values[: len(rows)] + tau * online.lookup(rows)
+        values[-1] = (1 - tau) * values[-1] + tau * online.default
+
+    def td_update(
+        self,
+        replay_buffer: MOReplayBuffer,
+        batch_size: int,
+        gamma: float,
+        max_grad_norm: float,
+        vec_normalize_env: VecNormalize | None = None,
+    ) -> float:
+        """
+        ``ψ(s, a) ← ψ(s, a) + α (target − ψ(s, a))`` for every sampled transition (repeats add up), with the
+        target of :meth:`SFDQNPolicy.td_update`.
+
+        This is the SGD step on ``0.5 · Σ ||target − ψ(s, a)||²`` with learning rate ``α``, done in place in
+        numpy on the table's memory (autograd through a table would cost far more than the update). ``α`` is the
+        optimizer's current learning rate, so SB3's learning-rate schedules apply. ``max_grad_norm`` is unused:
+        the tabular update is exact.
+
+        :return: the loss before the step
+        :raises ValueError: the update diverged: a value overflowed float32 (a learning rate too large for the batch)
+        """
+        if vec_normalize_env is not None and vec_normalize_env.norm_obs:
+            raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
+        obs, actions, next_obs, dones, rewards, next_masks = replay_buffer.sample_arrays(batch_size)
+        lr = self.optimizer.param_groups[0]["lr"]
+        with np.errstate(over="raise", invalid="raise"):  # a value beyond float32: the update diverged
+            try:
+                return self._backup(obs, actions, next_obs, dones, rewards, next_masks, gamma, lr)
+            except FloatingPointError:
+                raise ValueError(
+                    f"the tabular TD update diverged (its TD errors overflowed float32) with learning_rate {lr:g} and "
+                    f"batch_size {batch_size}: an entry sampled k times in one batch moves k · learning_rate of the "
+                    "way to its target, and beyond twice the way it grows instead of converging; lower learning_rate"
+                ) from None
+
+    def _backup(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        next_obs: np.ndarray,
+        dones: np.ndarray,
+        rewards: np.ndarray,
+        next_masks: np.ndarray | None,
+        gamma: float,
+        lr: float,
+    ) -> float:
+        """The update of :meth:`td_update` on a sampled batch; returns the loss before it."""
+        net, target_net, n_actions = self.sf_net, self.sf_net_target, self.sf_net.n_actions
+        slots = net.table.store(net.rows(obs, check=False))  # the rows written: stored first (the table may grow)
+        next_rows = net.rows(next_obs, check=False)
+        entries, next_first = net.entries(), net.table.slots(next_rows) * n_actions
+        next_flat = greedy_entries(entries, next_first, n_actions, self.weights.numpy(), next_masks)
+        if target_net is net:
+            next_psi = entries[next_flat]
+        else:  # the greedy actions in the target table's own slots
+            next_psi = target_net.entries()[target_net.table.slots(next_rows) * n_actions + next_flat - next_first]
+        target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_psi
+        flat = slots * n_actions + actions.astype(np.int64, copy=False)
+        td_error = target_psi - entries[flat]
+        np.add.at(entries, flat, lr * td_error)
+        return float(0.5 * np.square(td_error).sum())
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return dict(
+            observation_space=self.observation_space,
+            action_space=self.action_space,
+            reward_dim=self.reward_dim,
+            target_network=self.target_network,
+            lr_schedule=self._dummy_schedule,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+        )
