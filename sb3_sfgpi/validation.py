@@ -165,10 +165,11 @@ class ValidationScorer:
 
         def decided(episodes: list[int]) -> None:
             obs, masks, actions, members = last
-            for k in dict.fromkeys(episodes):  # each episode's rows, in the order run_episodes has them
-                rows = [r for r, episode in enumerate(episodes) if episode == k]
+            starts = [r for r in range(len(episodes)) if r == 0 or episodes[r] != episodes[r - 1]]
+            for start, stop in zip(starts, [*starts[1:], len(episodes)], strict=True):  # an episode's rows: together
+                rows = slice(start, stop)
                 step_masks = None if masks is None else masks[rows]
-                traces[k].append(Decisions(obs[rows], step_masks, actions[rows], [members[r] for r in rows]))
+                traces[episodes[start]].append(Decisions(obs[rows], step_masks, actions[rows], members[rows]))
 
         seeds = [self.seeds[i] + episode for i in indices for episode in range(n)]
         weights = np.repeat(self.weights[indices], n, axis=0)

@@ -18,13 +18,13 @@ from benchmarks import bench_tabular_peer as bench  # noqa: E402
 @pytest.mark.parametrize("updates", list(bench.PAIRS))
 def test_our_side_updates_a_batch_of_that_many_transitions_per_step(updates, monkeypatch):
     batches = []
-    sample = MOReplayBuffer.sample_arrays
+    sample = MOReplayBuffer.sample_rows
 
     def counted(buffer: MOReplayBuffer, batch_size: int):  # noqa: ANN202
         batches.append(batch_size)
         return sample(buffer, batch_size)
 
-    monkeypatch.setattr(MOReplayBuffer, "sample_arrays", counted)
+    monkeypatch.setattr(MOReplayBuffer, "sample_rows", counted)
     bench._sfdqn(bench.PAIRS[updates][0])(50)
     assert batches == [updates] * 50  # one batch per step from the first (learning_starts 0, train_freq 1)
 

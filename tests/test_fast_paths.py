@@ -15,11 +15,15 @@ import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from momdp import Fig1MOMDP
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from torch import nn
 
+from sb3_sfgpi.common import checks
 from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.checks import step_is_sound
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap
@@ -182,3 +186,43 @@ def test_store_transition_stores_what_sb3_stores():
         assert ours._last_obs is new_obs
     for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
         np.testing.assert_array_equal(getattr(ours.replay_buffer, name), getattr(sb3.replay_buffer, name))
+
+
+class _Spaces:
+    """An env as the step check reads it: each agent's reward space."""
+
+    def reward_space(self, agent: str) -> spaces.Box:
+        return spaces.Box(-1, 1, shape=(2,))
+
+
+_VALUES = st.sampled_from([0.0, 1.5, -3.0, 1e308, np.nan, np.inf, -np.inf])
+_AGENTS = st.sets(st.sampled_from(["a", "b", "c"]))
+_REWARDS = st.builds(np.array, st.lists(_VALUES, min_size=1, max_size=3), st.sampled_from([np.float32, np.float64]))
+_OBSERVATIONS = st.one_of(
+    st.just(np.arange(3)), st.builds(lambda x: np.array([1.0, x]), _VALUES), st.just([0.5, 1.0]), st.just(7)
+)
+
+
+@st.composite
+def _step_results(draw):
+    """Results of a step, each possibly with agents missing or extra, non-finite or malformed values."""
+    acted = draw(_AGENTS.filter(bool))
+
+    def entries(values):
+        keys = draw(_AGENTS) if draw(st.integers(0, 5)) == 0 else acted
+        return {agent: draw(values) for agent in keys}
+
+    results = (entries(_OBSERVATIONS), entries(_REWARDS), entries(st.just(False)), entries(st.just(False)))
+    return acted, results, draw(_AGENTS) if draw(st.booleans()) else acted
+
+
+@settings(max_examples=300, deadline=None)
+@given(_step_results())
+def test_the_quick_step_check_passes_only_what_the_full_check_passes(results):
+    """Issue 59: the step check's quick path (``step_is_sound``) may send a sound step to the full check, never pass
+    a step that the full check refuses (an unknown or missing agent, NaN or inf, a reward of another shape)."""
+    acted, (observations, rewards, terminations, truncations), agents = results
+    env = _Spaces()
+    if step_is_sound(env, acted, observations, rewards, terminations, truncations, agents):
+        full = checks._detailed_step_check
+        full(env, 0, acted, (observations, rewards, terminations, truncations), agents, 1)  # raises nothing

@@ -24,6 +24,22 @@ from sb3_sfgpi.common.action_masks import info_mask, stacked_masks
 Arrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, "np.ndarray | None"]
 
 
+class FlatStorage(NamedTuple):
+    """
+    A buffer's arrays seen as one row per ``transition * n_envs + env`` (views of its storage, for compiled
+    learners that read the sampled rows themselves; timeouts are time-limit truncations, which bootstrap).
+    """
+
+    observations: np.ndarray  #: ``(rows, obs_size)``, in the stored dtype
+    next_observations: np.ndarray  #: ``(rows, obs_size)``: read at :meth:`MOReplayBuffer.next_rows`
+    actions: np.ndarray  #: ``(rows,)``
+    rewards: np.ndarray  #: ``(rows, d)``, float32
+    dones: np.ndarray  #: ``(rows,)``, float32
+    timeouts: np.ndarray  #: ``(rows,)``, float32
+    next_forbidden: np.ndarray  #: ``(rows, n_actions)``: True where the next observation's mask forbids the action;
+    #: ``(0, 0)`` while no mask was stored
+
+
 class MOReplayBufferSamples(NamedTuple):
     """SB3's ``ReplayBufferSamples`` (rewards of shape ``(batch, d)``) with the next observations' action masks."""
 
@@ -231,19 +247,47 @@ class MOReplayBuffer(ReplayBuffer):
         indices = np.random.randint(start, stop, size=batch_size)
         return (indices + shift) % self.buffer_size if shift else indices  # without a shift, all in [0, buffer_size)
 
-    def _arrays(self, batch_inds: np.ndarray) -> Arrays:
+    def sample_rows(self, batch_size: int) -> np.ndarray:
+        """
+        The flat rows ``transition * n_envs + env`` of a sampled batch (of :meth:`flat_storage`), drawn as
+        :meth:`sample` and :meth:`sample_arrays` draw theirs.
+        """
+        return self._flat_rows(self._sample_indices(batch_size))
+
+    def next_rows(self, flat: np.ndarray) -> np.ndarray:
+        """The flat rows of the next observations of the transitions at ``flat`` in :meth:`flat_storage`."""
+        # With one array for obs and next obs, the next observation is the same env's one step later.
+        return (flat + self.n_envs) % (self.buffer_size * self.n_envs) if self.optimize_memory_usage else flat
+
+    def flat_storage(self) -> FlatStorage:
+        """The stored transitions, one row per ``transition * n_envs + env`` (views, see :class:`FlatStorage`)."""
+        n_rows = self.buffer_size * self.n_envs
+        forbidden = self.next_forbidden
+        return FlatStorage(
+            self.observations.reshape(n_rows, -1),
+            (self.observations if self.optimize_memory_usage else self.next_observations).reshape(n_rows, -1),
+            self.actions.reshape(n_rows),
+            self.rewards.reshape(n_rows, self.reward_dim),
+            self.dones.reshape(n_rows),
+            self.timeouts.reshape(n_rows),
+            np.zeros((0, 0), dtype=bool) if forbidden is None else forbidden.reshape(n_rows, -1),
+        )
+
+    def _flat_rows(self, batch_inds: np.ndarray) -> np.ndarray:
         # Each array is read as (buffer_size * n_envs, ...) at the flat rows ``transition * n_envs + env``: one
         # ``take`` per array is several times cheaper than indexing with two index arrays, for the same elements.
         if self.n_envs == 1:
             # randint over a single value draws nothing from the generator: skipping it changes no sample.
-            return self._gather(batch_inds)
+            return batch_inds
         env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
-        return self._gather(batch_inds * self.n_envs + env_indices)
+        return batch_inds * self.n_envs + env_indices
+
+    def _arrays(self, batch_inds: np.ndarray) -> Arrays:
+        return self._gather(self._flat_rows(batch_inds))
 
     def _gather(self, flat: np.ndarray) -> Arrays:
         """The transitions at the flat rows ``transition * n_envs + env`` (:data:`Arrays`, actions not flattened)."""
-        # With one array for obs and next obs, the next observation is the same env's one step later.
-        next_flat = (flat + self.n_envs) % (self.buffer_size * self.n_envs) if self.optimize_memory_usage else flat
+        next_flat = self.next_rows(flat)
         next_source = self.observations if self.optimize_memory_usage else self.next_observations
         dones, timeouts = self.dones.reshape(-1).take(flat), self.timeouts.reshape(-1).take(flat)
         return (

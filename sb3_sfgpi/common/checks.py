@@ -8,6 +8,7 @@ the agent and the step, before anything is stored.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection, Mapping
 from typing import Any
 
@@ -72,6 +73,12 @@ def check_parallel_step(env: Any, copy: int, acted: Collection[str], results: tu
     :param agents: the env's agents after the step
     :raises ValueError: naming the env, the agent and the step
     """
+    if not step_is_sound(env, acted, *results[:4], agents):  # the common case costs a few set and float operations
+        _detailed_step_check(env, copy, acted, results, agents, step)
+
+
+def _detailed_step_check(env: Any, copy: int, acted: Collection[str], results: tuple, agents: Any, step: int) -> None:
+    """:func:`check_parallel_step`, every rule in turn: the first broken one raises."""
     observations, rewards, terminations, truncations = results[:4]
     for agent in {*observations, *rewards, *agents}:
         if agent not in acted:
@@ -92,6 +99,54 @@ def check_parallel_step(env: Any, copy: int, acted: Collection[str], results: tu
                 f"{_where(env, agent, step, copy)}: the reward has shape {np.shape(rewards[agent])}, its "
                 f"reward_space {expected}"
             )
+
+
+def step_is_sound(
+    env: Any,
+    acted: Collection[str],
+    observations: Mapping[str, Any],
+    rewards: Mapping[str, Any],
+    terminations: Mapping[str, Any],
+    truncations: Mapping[str, Any],
+    agents: Any,
+) -> bool:
+    """
+    Whether :func:`check_parallel_step` would find nothing wrong, decided quickly for the usual results (numpy
+    rewards and observations); False where it cannot tell at once (the full check then looks closer).
+
+    A sum of finite values is finite, and NaN or inf in a value makes the sum NaN or inf: one sum per array tells
+    finiteness (a sum that overflows sends the step to the full check, which finds nothing).
+    """
+    acted = acted if isinstance(acted, (set, frozenset)) else set(acted)
+    if not (
+        observations.keys() == acted == rewards.keys()
+        and acted <= terminations.keys()
+        and acted <= truncations.keys()
+        and acted.issuperset(agents)
+    ):
+        return False
+    for agent in acted:
+        reward, observation = rewards[agent], observations[agent]
+        if not (
+            isinstance(reward, np.ndarray)
+            and reward.shape == env.reward_space(agent).shape
+            and _finite(reward)
+            and isinstance(observation, np.ndarray)
+            and _finite(observation)
+        ):
+            return False
+    return True
+
+
+def _finite(array: np.ndarray) -> bool:
+    """Whether a real array holds no NaN or inf, at the cost of one sum for a small one (False for other dtypes)."""
+    if array.dtype.kind in "biu":
+        return True
+    if array.dtype.kind != "f":
+        return False
+    if array.size <= 64:  # summed in Python floats: float64, so no sum of float32 values overflows
+        return math.isfinite(sum(array.ravel().tolist()))
+    return bool(np.isfinite(array).all())
 
 
 def _where(env: Any, agent: Any, step: int, copy: int) -> str:

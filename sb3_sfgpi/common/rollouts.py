@@ -172,7 +172,8 @@ def run_lockstep(
     :param seeds: each episode's seed
     :param gamma: discount factor of the discounted returns
     :param per_result: consecutive episodes whose returns form one result (the episodes of one weight)
-    :param decided: called after every call of ``policy`` with the episode (index into ``envs``) of each row
+    :param decided: called after every call of ``policy`` with the episode (index into ``envs``) of each row (an
+        episode's rows are consecutive)
     :return: the returns of each ``per_result`` consecutive episodes
     """
     if not len(envs) == len(weights) == len(seeds):

@@ -15,7 +15,7 @@ from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
-from sb3_sfgpi.tabular.network import TabularSFNetwork, greedy_entries
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 from sb3_sfgpi.tabular.planning import Experience, plan_table
 
 
@@ -201,8 +201,9 @@ class TabularPolicy(SFDQNPolicy):
         ``ψ(s, a) ← ψ(s, a) + α (target − ψ(s, a))`` for every sampled transition (repeats add up), with the
         target of :meth:`SFDQNPolicy.td_update`.
 
-        This is the SGD step on ``0.5 · Σ ||target − ψ(s, a)||²`` with learning rate ``α``, done in place in
-        numpy on the table's memory (autograd through a table would cost far more than the update). ``α`` is the
+        This is the SGD step on ``0.5 · Σ ||target − ψ(s, a)||²`` with learning rate ``α``, done in place on the
+        table's memory by compiled code that reads the sampled transitions from the buffer's storage
+        (:func:`~sb3_sfgpi.tabular.kernels.sampled_td_update`: numpy's arithmetic, the same bits). ``α`` is the
         optimizer's current learning rate, so SB3's learning-rate schedules apply. ``max_grad_norm`` is unused:
         the tabular update is exact.
 
@@ -211,44 +212,28 @@ class TabularPolicy(SFDQNPolicy):
         """
         if vec_normalize_env is not None and vec_normalize_env.norm_obs:
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
-        obs, actions, next_obs, dones, rewards, next_masks = replay_buffer.sample_arrays(batch_size)
-        lr = self.optimizer.param_groups[0]["lr"]
-        with np.errstate(over="raise", invalid="raise"):  # a value beyond float32: the update diverged
-            try:
-                return self._backup(obs, actions, next_obs, dones, rewards, next_masks, gamma, lr)
-            except FloatingPointError:
-                raise ValueError(
-                    f"the tabular TD update diverged (its TD errors overflowed float32) with learning_rate {lr:g} and "
-                    f"batch_size {batch_size}: an entry sampled k times in one batch moves k · learning_rate of the "
-                    "way to its target, and beyond twice the way it grows instead of converging; lower learning_rate"
-                ) from None
+        # numba (about 60 MB and 0.4 s) loads with the first tabular update: deep learners never import it
+        from sb3_sfgpi.tabular.kernels import DIVERGED, STORE_ROWS, sampled_td_update
 
-    def _backup(
-        self,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        next_obs: np.ndarray,
-        dones: np.ndarray,
-        rewards: np.ndarray,
-        next_masks: np.ndarray | None,
-        gamma: float,
-        lr: float,
-    ) -> float:
-        """The update of :meth:`td_update` on a sampled batch; returns the loss before it."""
-        net, target_net, n_actions = self.sf_net, self.sf_net_target, self.sf_net.n_actions
-        slots = net.table.store(net.rows(obs, check=False))  # the rows written: stored first (the table may grow)
-        next_rows = net.rows(next_obs, check=False)
-        entries, next_first = net.entries(), net.table.slots(next_rows) * n_actions
-        next_flat = greedy_entries(entries, next_first, n_actions, self.weights.numpy(), next_masks)
-        if target_net is net:
-            next_psi = entries[next_flat]
-        else:  # the greedy actions in the target table's own slots
-            next_psi = target_net.entries()[target_net.table.slots(next_rows) * n_actions + next_flat - next_first]
-        target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_psi
-        flat = slots * n_actions + actions.astype(np.int64, copy=False)
-        td_error = target_psi - entries[flat]
-        np.add.at(entries, flat, lr * td_error)
-        return float(0.5 * np.square(td_error).sum())
+        flat = replay_buffer.sample_rows(batch_size)
+        lr = self.optimizer.param_groups[0]["lr"]
+        net, target_net, storage = self.sf_net, self.sf_net_target, replay_buffer.flat_storage()
+        rows, td_error = np.empty(batch_size, dtype=np.int64), np.empty((batch_size, self.reward_dim), dtype=np.float32)
+        outcome = STORE_ROWS
+        while outcome == STORE_ROWS:  # at most twice: the second time every row is stored
+            outcome = sampled_td_update(
+                net.table_storage(), target_net.table_storage(), storage, flat, replay_buffer.next_rows(flat),
+                *net.row_strides(), self.weights.numpy(), np.float32(gamma), np.float32(lr), rows, td_error,
+            )  # fmt: skip
+            if outcome == STORE_ROWS:
+                net.table.store(rows)
+        if outcome == DIVERGED:
+            raise _diverged(lr, batch_size)
+        with np.errstate(over="raise", invalid="raise"):  # a loss beyond float32 is divergence too
+            try:
+                return float(0.5 * np.square(td_error).sum())
+            except FloatingPointError:
+                raise _diverged(lr, batch_size) from None
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return dict(
@@ -260,3 +245,12 @@ class TabularPolicy(SFDQNPolicy):
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
         )
+
+
+def _diverged(lr: float, batch_size: int) -> ValueError:
+    """The error of a tabular TD update whose values overflowed float32."""
+    return ValueError(
+        f"the tabular TD update diverged (its values overflowed float32) with learning_rate {lr:g} and batch_size "
+        f"{batch_size}: an entry sampled k times in one batch moves k · learning_rate of the way to its target, and "
+        "beyond twice the way it grows instead of converging; lower learning_rate"
+    )

@@ -107,6 +107,18 @@ class TabularSFNetwork(BasePolicy):
         """
         return self.table.values.reshape(-1, self.reward_dim)
 
+    def table_storage(self) -> tuple[np.ndarray, np.ndarray]:
+        """
+        The table as compiled code reads it: its storage, shape ``(slots + 1, n_actions, d)`` (the default row last),
+        and its slot map (views, until the table grows).
+        """
+        return self.table.values.reshape(-1, self.n_actions, self.reward_dim), self.table.slot_map()
+
+    def row_strides(self) -> tuple[np.ndarray, int]:
+        """The mixed-radix strides of an observation's components and the row of the lowest observation: an
+        observation's row is ``observation @ strides - first_row`` (see :meth:`rows`)."""
+        return self._strides, self._first_row
+
     def _save_to_state_dict(self, destination: dict[str, Any], prefix: str, keep_vars: bool) -> None:
         table = self.table
         destination[prefix + "table.rows"] = th.from_numpy(table.stored_rows().copy())

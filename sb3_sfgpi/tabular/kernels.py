@@ -1,0 +1,130 @@
+"""The tabular learner's per-step arithmetic, compiled by numba: the same operations in the same order as numpy's.
+
+A tabular TD update on a batch of 32 transitions is a few hundred floating-point operations; in numpy each of its
+steps is a call with its own overhead (about 100 µs in all), compiled it is about a microsecond. Compiled code must not
+change a single number: every product and sum here is one float32 IEEE operation, in the order numpy does them
+(:func:`~sb3_sfgpi.common.weights.weighted_sum`: ``(v_0 w_0 + v_1 w_1) + v_2 w_2 + ...``), with no ``fastmath`` (no
+reassociation, no fused multiply-add; ``tests/test_kernels.py`` checks the machine code), so the table holds the same
+bits as numpy's update would, on every CPU. The compiled code is cached next to this file (or in numba's user cache
+where that is not writable), so a run compiles it once per machine.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_ONE = np.float32(1.0)
+
+
+#: What :func:`sampled_td_update` returns: done; a value overflowed float32 (the update diverged); a sampled state
+#: has no row in the table yet (store the rows it wrote, then call again).
+UPDATED, DIVERGED, STORE_ROWS = 1, 0, -1
+
+
+@njit(cache=True, nogil=True)
+def greedy_action(psi: np.ndarray, weights: np.ndarray, forbidden: np.ndarray) -> tuple[int, bool]:
+    """
+    ``argmax_a w · ψ(a)`` over the actions not forbidden, ties to the first (numpy's ``argmax`` of
+    :func:`~sb3_sfgpi.common.weights.weighted_sum`, masked to ``-inf``).
+
+    :param psi: one state's ψ, shape ``(n_actions, d)``, float32
+    :param weights: ``w``, shape ``(d,)``, float32
+    :param forbidden: True for the actions the state does not have, shape ``(n_actions,)``, or empty: none
+    :return: the action, and whether every allowed action's value is finite
+    """
+    best, best_action, finite = -np.inf, 0, True
+    for a in range(psi.shape[0]):
+        if forbidden.shape[0] and forbidden[a]:
+            continue
+        q = psi[a, 0] * weights[0]
+        if psi.shape[1] > 1:
+            q = q + psi[a, 1] * weights[1]
+            for k in range(2, psi.shape[1]):
+                q = q + psi[a, k] * weights[k]
+        if not np.isfinite(q):
+            finite = False
+        if q > best:
+            best, best_action = q, a
+    return best_action, finite
+
+
+@njit(cache=True, nogil=True)
+def table_row(observations: np.ndarray, flat: int, strides: np.ndarray, first_row: int) -> int:
+    """The table row of the observation stored at row ``flat``: its mixed-radix index (integers: exact)."""
+    row = 0
+    for j in range(strides.shape[0]):
+        row += np.int64(observations[flat, j]) * strides[j]
+    return row - first_row
+
+
+@njit(cache=True, nogil=True)
+def sampled_td_update(
+    table: tuple,
+    target: tuple,
+    storage: tuple,
+    flat: np.ndarray,
+    next_flat: np.ndarray,
+    strides: np.ndarray,
+    first_row: int,
+    weights: np.ndarray,
+    gamma: np.float32,
+    lr: np.float32,
+    rows: np.ndarray,
+    td_error: np.ndarray,
+) -> int:
+    """
+    The tabular TD update of the transitions stored at rows ``flat`` of a replay buffer, in place: first every TD error
+    from the table as it was, then ``ψ(s, a) += lr · δ`` transition after transition (repeats add up, as
+    ``np.add.at``).
+
+    The target of a transition is ``r + (1 − done) γ ψ_target(s', a*)`` (``done``: terminated, not truncated) with
+    ``a* = argmax_a w · ψ(s', a)`` over the actions the next state has, read from the online table.
+
+    :param table: the online table: its storage, shape ``(slots + 1, n_actions, d)``, float32 (slot ``-1``: the
+        default row), and its slot map (for each row its slot, ``-1``: not stored)
+    :param target: the target table, the same pair (the online one where there is none)
+    :param storage: the buffer's :class:`~sb3_sfgpi.common.buffers.FlatStorage`
+    :param next_flat: the rows of the next observations
+    :param strides: the table's mixed-radix strides of an observation's components, with ``first_row`` the row of
+        the lowest observation
+    :param rows: written: the table row of each transition's observation
+    :param td_error: written: each transition's TD error before the update, shape ``(batch, d)``, float32
+    :return: :data:`UPDATED`, :data:`DIVERGED` (the table may be partly updated) or :data:`STORE_ROWS` (nothing
+        updated)
+    """
+    psi, slot_map = table
+    target_psi, target_slot_map = target
+    observations, next_observations, actions, rewards, dones, timeouts, next_forbidden = storage
+    no_masks = np.zeros(0, dtype=np.bool_)
+    missing = False
+    for i in range(flat.shape[0]):
+        rows[i] = table_row(observations, flat[i], strides, first_row)
+        missing = missing or slot_map[rows[i]] < 0
+    if missing:
+        return STORE_ROWS
+    for i in range(flat.shape[0]):
+        f = flat[i]
+        next_row = table_row(next_observations, next_flat[i], strides, first_row)
+        next_slot = slot_map[next_row] if slot_map[next_row] >= 0 else psi.shape[0] - 1
+        forbidden = next_forbidden[f] if next_forbidden.shape[0] else no_masks
+        best, finite = greedy_action(psi[next_slot], weights, forbidden)
+        if not finite:
+            return DIVERGED
+        target_slot = target_slot_map[next_row] if target_slot_map[next_row] >= 0 else target_psi.shape[0] - 1
+        terminated = dones[f] * (_ONE - timeouts[f])
+        discount = (_ONE - terminated) * gamma
+        slot, action = slot_map[rows[i]], actions[f]
+        for k in range(psi.shape[2]):
+            target_value = rewards[f, k] + discount * target_psi[target_slot, best, k]
+            td_error[i, k] = target_value - psi[slot, action, k]
+            if not np.isfinite(td_error[i, k]):
+                return DIVERGED
+    for i in range(flat.shape[0]):
+        slot, action = slot_map[rows[i]], actions[flat[i]]
+        for k in range(psi.shape[2]):
+            value = psi[slot, action, k] + lr * td_error[i, k]
+            if not np.isfinite(value):
+                return DIVERGED
+            psi[slot, action, k] = value
+    return UPDATED

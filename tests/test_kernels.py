@@ -1,0 +1,128 @@
+"""The compiled tabular TD update (issue 59) against numpy's: the same table, bit for bit, from the same random draws,
+for every kind of buffer and table; and machine code without fused multiply-adds (a fused ``a · b + c`` rounds once,
+numpy's twice: other bits on other CPUs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sb3_sfgpi.common.action_masks import masked
+from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
+from sb3_sfgpi.tabular import kernels
+
+OBSERVATION_SPACES = [spaces.Discrete(7, start=-2), spaces.MultiDiscrete([3, 4], start=[1, -1]), spaces.MultiBinary(3)]
+
+
+def numpy_update(policy: TabularPolicy, buffer: MOReplayBuffer, batch_size: int, gamma: float) -> np.ndarray:
+    """The update as numpy did it before it was compiled (``TabularPolicy._backup`` of commit 5fa6c10)."""
+    obs, actions, next_obs, dones, rewards, next_masks = buffer.sample_arrays(batch_size)
+    lr = policy.optimizer.param_groups[0]["lr"]
+    net, target_net, n_actions = policy.sf_net, policy.sf_net_target, policy.sf_net.n_actions
+    slots = net.table.store(net.rows(obs, check=False))
+    next_rows = net.rows(next_obs, check=False)
+    entries, next_first = net.entries(), net.table.slots(next_rows) * n_actions
+    psi = entries.reshape(-1, n_actions, entries.shape[1])[next_first // n_actions]
+    next_flat = next_first + masked(weighted_sum(psi, policy.weights.numpy()), next_masks).argmax(axis=1)
+    if target_net is net:
+        next_psi = entries[next_flat]
+    else:
+        next_psi = target_net.entries()[target_net.table.slots(next_rows) * n_actions + next_flat - next_first]
+    target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_psi
+    flat = slots * n_actions + actions.astype(np.int64, copy=False)
+    td_error = target_psi - entries[flat]
+    np.add.at(entries, flat, lr * td_error)
+    return td_error
+
+
+def learner(space: spaces.Space, seed: int, target_network: bool, lr: float) -> TabularPolicy:
+    """A tabular policy of 4 actions and 3 objectives whose tables hold a few rows of values that round."""
+    policy = TabularPolicy(space, spaces.Discrete(4), lambda _: lr, 3, target_network=target_network)
+    rng = np.random.default_rng(seed)
+    policy.weights.copy_(torch_weights(rng))
+    for net in {id(policy.sf_net): policy.sf_net, id(policy.sf_net_target): policy.sf_net_target}.values():
+        rows = np.unique(rng.integers(0, net.table.n_rows, 3))
+        values = rng.choice(np.float32([0, 0.1, 1 / 3, -2.5, 7e-3, 123.456]), size=(len(rows), net.table.width))
+        net.table.set_rows(rows, values, net.table.default.copy())
+    return policy
+
+
+def torch_weights(rng: np.random.Generator) -> th.Tensor:
+    w = rng.dirichlet(np.ones(3)).astype(np.float32)
+    w[rng.integers(3)] = 0.0 if rng.random() < 0.3 else w[0]
+    return th.from_numpy(w)
+
+
+def filled_buffer(space: spaces.Space, seed: int, n_envs: int, compact: bool, masks: bool) -> MOReplayBuffer:
+    buffer = MOReplayBuffer(64, space, spaces.Discrete(4), n_envs=n_envs, optimize_memory_usage=compact, reward_dim=3)
+    space.seed(seed)
+    rng = np.random.default_rng(seed)
+    for _ in range(90):  # wraps around
+        obs = np.stack([space.sample() for _ in range(n_envs)])
+        infos = [
+            {
+                "action_mask": (rng.random(4) < 0.6) | (np.arange(4) == rng.integers(4)),
+                "TimeLimit.truncated": bool(rng.random() < 0.3),
+            }
+            if masks
+            else {}
+            for _ in range(n_envs)
+        ]
+        buffer.add(
+            obs, np.stack([space.sample() for _ in range(n_envs)]), rng.integers(0, 4, (n_envs, 1)),
+            rng.standard_normal((n_envs, 3)).astype(np.float32), rng.random(n_envs) < 0.2, infos,
+        )  # fmt: skip
+    return buffer
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    space=st.sampled_from(OBSERVATION_SPACES),
+    seed=st.integers(0, 2**32 - 1),
+    target_network=st.booleans(),
+    n_envs=st.sampled_from([1, 2]),
+    compact=st.booleans(),
+    masks=st.booleans(),
+    gamma=st.sampled_from([0.9, 0.99, 1.0]),
+    lr=st.sampled_from([0.1, 0.5, 1e-3]),
+)
+def test_the_compiled_td_update_leaves_the_bits_numpy_leaves(
+    space, seed, target_network, n_envs, compact, masks, gamma, lr
+):
+    buffer = filled_buffer(space, seed, n_envs, compact, masks)
+    ours, theirs = learner(space, seed, target_network, lr), learner(space, seed, target_network, lr)
+    for update in range(3):  # the tables grow: rows not stored yet are stored first
+        np.random.seed(seed % 1000 + update)
+        expected = numpy_update(theirs, buffer, 32, gamma)
+        np.random.seed(seed % 1000 + update)
+        loss = ours.td_update(buffer, 32, gamma, 10.0)
+        assert loss == float(0.5 * np.square(expected).sum())
+        for mine, reference in ((ours.sf_net, theirs.sf_net), (ours.sf_net_target, theirs.sf_net_target)):
+            np.testing.assert_array_equal(mine.table.stored_rows(), reference.table.stored_rows())
+            np.testing.assert_array_equal(mine.table.dense().view(np.uint32), reference.table.dense().view(np.uint32))
+
+
+def test_an_update_that_overflows_stores_no_inf_and_says_so():
+    space = spaces.Discrete(3)
+    policy, buffer = learner(space, 0, False, 1.0), filled_buffer(space, 0, 1, False, False)
+    buffer.rewards[:] = 3e38
+    with pytest.raises(ValueError, match="the tabular TD update diverged"):
+        for _ in range(10):
+            policy.td_update(buffer, 32, 0.99, 10.0)
+    assert np.isfinite(policy.sf_net.table.dense()).all()
+
+
+@pytest.mark.parametrize("kernel", ["sampled_td_update", "greedy_action", "table_row"])
+def test_the_compiled_kernels_have_no_fused_multiply_add(kernel):
+    compiled = getattr(kernels, kernel)
+    if not compiled.signatures:  # compiled on first use: use it once
+        policy, space = learner(OBSERVATION_SPACES[0], 0, False, 0.1), OBSERVATION_SPACES[0]
+        policy.td_update(filled_buffer(space, 0, 1, False, False), 32, 0.9, 10.0)
+    for assembly in compiled.inspect_asm().values():
+        assert "fma" not in assembly.lower()
