@@ -17,7 +17,8 @@ import numpy as np
 from benchmarks._common import Row, fmt_rate, paired_ratio
 from benchmarks.bench_training import FixedWeights, chunked_interleaved
 from sb3_sfgpi.cli.presets import load_domain
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
 
 
 def _runner(k: int, gradient_steps: int, runners: list[MultiAgentRunner]):

@@ -13,7 +13,8 @@ import numpy as np
 from benchmarks._common import Row, fmt_rate, paired_ratio
 from benchmarks.bench_training import FixedWeights, chunked_interleaved
 from sb3_sfgpi import SwapTerminationsTruncations
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
 
 #: SFDQN's defaults (MLP [64, 64], train_freq 4, batch 32) with a smaller buffer and learning from the start.
 LEARNER_KWARGS = dict(policy="MlpPolicy", buffer_size=100_000, learning_starts=0, device="cpu")

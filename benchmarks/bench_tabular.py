@@ -34,7 +34,8 @@ import hashlib, json, time
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from sfgpi_envs.domains import four_room
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
+from sb3_sfgpi.learners import default_learner_factory
 
 class Fixed(BaseCallback):
     def _on_step(self):

@@ -35,7 +35,8 @@ from torch.nn import functional as F
 from benchmarks._common import Row, fmt_rate, fmt_time, interleaved_samples, paired_ratio
 from benchmarks.envs import four_room, scalarized_four_room
 from sb3_sfgpi import SFDQN
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.sfdqn.networks import greedy_actions
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 

@@ -24,7 +24,8 @@ from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation, learn_iterations
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory, replay_sized
+from sb3_sfgpi.learners import default_learner_factory, replay_sized
+from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_logger import run_logger
 from sb3_sfgpi.run_settings import GAMMA, RunSettings, acts_by_own_policies

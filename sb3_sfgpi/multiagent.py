@@ -1,83 +1,52 @@
 """Independent SFDQN learners stepping one PettingZoo ParallelEnv in lockstep.
 
-Each agent has its own :class:`~sb3_sfgpi.sfdqn.SFDQN` (own network, own replay buffer), driven through
-SB3's low-level API (``_setup_learn``, ``_sample_action``, ``_store_transition``, ``train``) so that its
-logger, callbacks and save/load work as in ``learn()``. The runner itself behaves like an SB3 algorithm
-towards a runner-level callback (e.g. :class:`~sb3_sfgpi.callbacks.OLSCallback`): ``learn(total_timesteps,
-callback)`` calls ``callback.on_step()`` after every joint step, and a callback returning False stops it.
+Each agent has its own :class:`~sb3_sfgpi.sfdqn.SFDQN` (own network, own replay buffer), fed its transitions as its
+own ``learn()`` would (:mod:`sb3_sfgpi.learners`): its logger, callbacks and save/load work as there. The runner
+behaves like an SB3 algorithm towards a runner-level callback (e.g. :class:`~sb3_sfgpi.callbacks.OLSCallback`):
+``learn(total_timesteps, callback)`` calls ``callback.on_step()`` after every joint step; False stops it.
 """
 
 from __future__ import annotations
 
-import time
-import warnings
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.type_aliases import MaybeCallback, TrainFrequencyUnit
-from stable_baselines3.common.vec_env import VecEnv
 from tqdm.auto import tqdm
 
-from sb3_sfgpi.common.action_masks import ACTION_MASK, info_mask, masked, stacked_masks
-from sb3_sfgpi.common.agent_views import (
-    AgentVecEnv,
-    Rows,
-    Transitions,
-    folderless_logger,
-    remove_interrupted_logs,
-    replaced,
+from sb3_sfgpi.common.action_masks import ACTION_MASK, info_mask, stacked_masks
+from sb3_sfgpi.common.agent_views import AgentVecEnv, Transitions, folderless_logger, replaced
+from sb3_sfgpi.common.checks import (
+    check_homogeneous,
+    check_parallel_reset,
+    check_parallel_step,
+    warn_of_swapped_flags,
 )
-from sb3_sfgpi.common.checks import check_parallel_reset, check_parallel_step
-from sb3_sfgpi.common.env_copies import ONE_PER_PROCESS, EnvCopies, SingleCopy
+from sb3_sfgpi.common.env_copies import EnvCopies, SideBySide, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
 from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, RowPolicy, run_episodes, run_lockstep
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import SAME_WEIGHT
+from sb3_sfgpi.learners import (
+    EpisodeMonitor,
+    LearnerFactory,
+    default_learner_factory,
+    end_learning,
+    greedy_joint_policy,
+    greedy_rows,
+    learner_step,
+    start_learning,
+    stored_rows,
+)
 from sb3_sfgpi.ols import unique_points
 from sb3_sfgpi.run_settings import SHARED, SHARINGS
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.training_state import restore_training_state
-
-#: Builds the learner of an agent: ``(agent, per-agent VecEnv, weights, seed) -> SFDQN``.
-LearnerFactory = Callable[[str, VecEnv, np.ndarray, int], SFDQN]
-
-
-def default_learner_factory(**sfdqn_kwargs: Any) -> LearnerFactory:
-    """
-    A factory making ``SFDQN(policy, view, weights=..., seed=..., **kwargs)``.
-
-    :param sfdqn_kwargs: SFDQN arguments (``policy`` defaults to ``"MlpPolicy"``)
-    """
-    kwargs = {"policy": "MlpPolicy", **sfdqn_kwargs}
-
-    def make(agent: str, view: VecEnv, weights: np.ndarray, seed: int) -> SFDQN:
-        return SFDQN(env=view, weights=weights, seed=seed, **kwargs)
-
-    return make
-
-
-def replay_sized(learner_kwargs: Mapping[str, Any], steps_per_iteration: int, slots: int) -> dict[str, Any]:
-    """
-    SFDQN arguments whose replay buffer holds what a learner of the runner stores in one iteration, no more.
-
-    A learner stores at most one step of its slots per joint step (SB3's ``buffer_size`` counts rows: ``n_envs`` per
-    step), and it lives one iteration: a buffer of ``steps_per_iteration + 1`` steps never fills, so it holds and
-    samples exactly what a larger one would (the same random draws), without the larger one's memory (SB3 allocates
-    all of it up front, and glibc may hand out reused, hence resident, memory).
-
-    :param learner_kwargs: SFDQN arguments; a ``buffer_size`` below the cap is kept
-    :param steps_per_iteration: joint steps of an iteration
-    :param slots: the most slots (agents times env copies) a learner has
-    :return: a new dict of arguments
-    """
-    cap = (steps_per_iteration + 1) * slots
-    return {**learner_kwargs, "buffer_size": min(learner_kwargs.get("buffer_size", cap), cap)}
 
 
 class MultiAgentRunner:
@@ -138,18 +107,16 @@ class MultiAgentRunner:
             raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
         if n_envs > 1 and env_fn is None:
             raise ValueError("n_envs > 1 needs env_fn (and env_kwargs) to build the env's copies")
-        self.log_interval = log_interval
-        self.sharing = sharing
+        self.log_interval, self.sharing = log_interval, sharing
         self.env = env = as_parallel_env(env)
         self.agents: list[str] = list(env.possible_agents)
         self._time_limit = time_limit(env)
         self._warned_swap = False
         self.learner_factory = learner_factory or default_learner_factory()
         self.seed = seed
-        self.learner_callback = learner_callback
-        self.tensorboard_log = tensorboard_log
+        self.learner_callback, self.tensorboard_log = learner_callback, tensorboard_log
         self.verbose = verbose
-        self._check_homogeneous()
+        check_homogeneous(env, self.agents)
         self._reward_dim = int(env.reward_space(self.agents[0]).shape[0])  # type: ignore[attr-defined]
         #: learner name -> the agents it acts for, in the order of its slots
         self.groups: dict[str, list[str]] = (
@@ -169,36 +136,19 @@ class MultiAgentRunner:
         #: ``(copy, agent)`` -> the action mask of its last observation (None: every action)
         self._masks: dict[tuple[int, str], np.ndarray | None] = {}
         self._episode_steps = [0] * n_envs
-        self._env_fn, self._env_kwargs = env_fn, dict(env_kwargs or {})
-        #: copies of the env for :meth:`lockstep`
-        self._env_copies: list[ParallelEnv] = []
+        self._side_by_side = SideBySide(env, env_fn, env_kwargs)  # copies for :meth:`lockstep`
         self.learners: dict[str, SFDQN] = {}
         self._learner_callbacks: dict[str, BaseCallback] = {}
         self._gamma = gamma
         self.num_timesteps = 0
         self.iteration = 0
         self.logger: Logger = folderless_logger(verbose)
-        self._start_time = time.time()
+        self._monitor = EpisodeMonitor(self._reward_dim)
 
     @property
     def learner_names(self) -> list[str]:
         """The names of the learners of an iteration (the keys of the weights it trains)."""
         return list(self.groups)
-
-    def _check_homogeneous(self) -> None:
-        env, first = self.env, self.agents[0]
-        for agent in self.agents:
-            for kind in ("observation_space", "action_space", "reward_space"):
-                if getattr(env, kind)(agent) != getattr(env, kind)(first):
-                    raise ValueError(
-                        f"MA-SFOLS shares policies between agents: all agents need the same spaces, but the "
-                        f"{kind.replace('_', ' ')} of {agent!r} is {getattr(env, kind)(agent)} and of {first!r} "
-                        f"{getattr(env, kind)(first)}; pad them into one layout that means the same at every agent "
-                        "(TrafficSignalEnv: observation_fn='padded'; Discrete actions: sb3_sfgpi.PadActions(env)), "
-                        "and with sharing='shared' every policy learns at every agent"
-                    )
-        if not isinstance(env.action_space(first), spaces.Discrete):
-            raise ValueError(f"SFDQN needs Discrete actions, got {env.action_space(first)}")
 
     @property
     def conditioned_learners(self) -> dict[str, SFDQN]:
@@ -282,21 +232,10 @@ class MultiAgentRunner:
             self.learners[name] = learner
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for name, learner in self.learners.items():
-            log_name = f"{name}_iter{iteration + 1:03d}"  # iterations are named from 1
-            if self.tensorboard_log is not None:
-                learner.tensorboard_log = self.tensorboard_log
-                remove_interrupted_logs(self.tensorboard_log, log_name)
-            else:  # SB3's own logger would make a folder in the temporary directory for every learner
-                learner.set_logger(folderless_logger(learner.verbose))
-            _, callback = learner._setup_learn(
-                total_timesteps * learner.n_envs,  # in transitions, as SB3 counts them
-                self.learner_callback(name) if self.learner_callback else None,
-                reset_num_timesteps=not learner.conditioned,
-                tb_log_name=log_name,
-            )
-            callback.on_training_start(locals(), globals())
-            callback.on_rollout_start()
-            self._learner_callbacks[name] = callback
+            callback = self.learner_callback(name) if self.learner_callback else None
+            self._learner_callbacks[name] = start_learning(
+                learner, f"{name}_iter{iteration + 1:03d}", total_timesteps, callback, self.tensorboard_log
+            )  # iterations are named from 1
 
     def restore_learners(self, states: Mapping[str, Any]) -> None:
         """
@@ -363,7 +302,9 @@ class MultiAgentRunner:
             check_parallel_step(self.env, copy, actions[copy], returned, agents, self.num_timesteps)  # before storing
             self._episode_steps[copy] += 1
             self._live[copy] = set(agents)
-            self._check_truncations(copy, returned[2], returned[3])
+            if not (self._warned_swap or self._live[copy] or self._time_limit is None):  # an episode ended early?
+                steps = self._episode_steps[copy]
+                self._warned_swap = warn_of_swapped_flags(returned[2], returned[3], steps, self._time_limit)
             for values, by_key in zip(returned, merged, strict=True):
                 by_key.update({(copy, agent): value for agent, value in values.items()})
         for copy, (*_, infos, _agents) in enumerate(results):
@@ -371,8 +312,11 @@ class MultiAgentRunner:
         keep_going = True
         for name, (live, buffer_action) in sampled.items():
             keys = [self.slots[name][i] for i in live]
-            rows, infos = self._stored_rows(name, Transitions(keys, live, buffer_action[live], *merged))
-            keep_going &= self._learner_step(name, rows, infos)
+            step = Transitions(keys, live, buffer_action[live], *merged)
+            rows, infos = stored_rows(self.learners[name], step, self._monitor, self._slot_masks(keys))
+            keep_going &= learner_step(
+                self.learners[name], self._learner_callbacks[name], rows, infos, self.log_interval
+            )
         finished = [copy for copy in range(self.n_envs) if not self._live[copy]]
         if finished:
             self.reset_env(copies=finished)
@@ -388,130 +332,35 @@ class MultiAgentRunner:
         """The masks of the ``(copy, agent)`` keys' last observations, shape ``(len(keys), n_actions)``, or None."""
         return stacked_masks([self._masks.get(key) for key in keys], self._n_actions) if self._masks else None
 
-    def _check_truncations(self, copy: int, terminations: dict[str, bool], truncations: dict[str, bool]) -> None:
-        """Warn once where every agent is truncated before the env's declared time limit: swapped flags?"""
-        if self._warned_swap or self._live[copy] or self._time_limit is None:
-            return
-        truncated = all(truncations.get(a, False) and not terminations.get(a, False) for a in truncations)
-        if truncated and self._episode_steps[copy] < self._time_limit:
-            self._warned_swap = True
-            warnings.warn(
-                f"every agent was truncated after {self._episode_steps[copy]} steps, before the env's time limit "
-                f"({self._time_limit}): does it return terminations and truncations swapped (MOMAland 0.2's item "
-                "gathering and beach do)? Then wrap it in sb3_sfgpi.SwapTerminationsTruncations",
-                stacklevel=3,
-            )
-
-    def _stored_rows(self, name: str, step: Transitions) -> tuple[Rows, list[dict[str, Any]]]:
-        """
-        The transitions of learner ``name``'s live agents, as its replay buffer stores them, and their infos; its last
-        observations move on to theirs.
-        """
-        learner = self.learners[name]
-        # np.array of a list of equal arrays is np.stack of them, faster for the few agents of a step.
-        next_obs = np.array([step.obs[agent] for agent in step.agents])
-        rewards = np.array([step.rewards[agent] for agent in step.agents], dtype=np.float32)
-        dones = np.array([step.terminations[agent] or step.truncations[agent] for agent in step.agents])
-        infos = [self._monitored_info(agent, step) for agent in step.agents]
-        timeouts = np.array([info.get("TimeLimit.truncated", False) for info in infos])
-        next_masks = self._slot_masks(step.agents)
-        last_obs = learner._last_obs
-        learner._last_obs = next_obs if len(step.slots) == learner.n_envs else replaced(last_obs, step.slots, next_obs)
-        return Rows(last_obs[step.slots], next_obs, step.buffer_actions, rewards, dones, timeouts, next_masks), infos
-
-    def _learner_step(self, name: str, rows: Rows, infos: list[dict[str, Any]]) -> bool:
-        """
-        Hand learner ``name`` the transitions of its live agents, as SB3's ``collect_rollouts`` would: count them,
-        call its callback, store them, and train when due.
-        """
-        learner, callback = self.learners[name], self._learner_callbacks[name]
-        learner.num_timesteps += len(infos)
-        callback.update_locals({"new_obs": rows.next_obs, "rewards": rows.rewards, "dones": rows.dones, "infos": infos})
-        keep_going = callback.on_step()
-        learner._update_info_buffer(infos, rows.dones)
-        learner.replay_buffer.add_rows(*rows)
-        learner._update_current_progress_remaining(learner.num_timesteps, learner._total_timesteps)
-        learner._on_step()
-        episodes_before = learner._episode_num
-        learner._episode_num += np.count_nonzero(rows.dones)
-        if learner._episode_num // self.log_interval > episodes_before // self.log_interval:
-            learner.dump_logs()  # SB3's log_interval: a point of the learning curve (at most one per joint step)
-        if learner.num_timesteps > learner.learning_starts and learner._n_calls % learner.train_freq.frequency == 0:
-            callback.on_rollout_end()
-            learner.train(gradient_steps=max(learner.gradient_steps, 1), batch_size=learner.batch_size)
-            callback.on_rollout_start()
-        return bool(keep_going)
-
-    def _monitored_info(self, agent: tuple[int, str], step: Transitions) -> dict[str, Any]:
-        """The info of ``(copy, agent)``, with the episode's vector return where it ended (what MOMonitor adds)."""
-        info = step.infos[agent]
-        monitor = self._monitors.setdefault(agent, [np.zeros(self._reward_dim), 0])
-        monitor[0] = monitor[0] + step.rewards[agent]
-        monitor[1] += 1
-        if step.terminations[agent] or step.truncations[agent]:
-            info = dict(info)
-            info["terminal_observation"] = step.obs[agent]
-            info["TimeLimit.truncated"] = step.truncations[agent] and not step.terminations[agent]
-            info["episode"] = {"r_vec": monitor[0], "l": monitor[1], "t": round(time.time() - self._start_time, 6)}
-            del self._monitors[agent]
-        return info
-
     def end_iteration(self) -> None:
         """
         Remove the learners' optimism (:meth:`~sb3_sfgpi.sfdqn.SFDQN.remove_optimism`), close their callbacks and logs.
         """
         for name, callback in self._learner_callbacks.items():
-            self.learners[name].remove_optimism()
-            callback.on_rollout_end()
-            callback.on_training_end()
-            if self.learners[name]._episode_num > 0:
-                self.learners[name].dump_logs()
+            end_learning(self.learners[name], callback)
         self._learner_callbacks = {}
 
     def _close_learners(self) -> None:
         if self._learner_callbacks:
             self.end_iteration()
-        self._monitors: dict[str, list] = {}
+        self._monitor.clear()
 
     def learner_policy(self, learner: str | None = None, w: np.ndarray | None = None) -> JointPolicy:
         """
-        The joint policy of the learners' greedy policies.
+        The joint policy of the learners' greedy policies (:func:`~sb3_sfgpi.learners.greedy_joint_policy`).
 
         :param learner: None: every agent acts with the learner it trains; a learner's name: every agent acts with
             that learner (the value of its policy as a shared one)
-        :param w: the weights every learner acts for (None: its own); a learner conditioned on the weights acts by
-            GPI over its support
+        :param w: the weights every learner acts for (None: its own)
         """
-
-        def act(observations: dict[str, Any], action_masks: Mapping[str, Any] | None = None) -> dict[str, int]:
-            chosen: dict[str, int] = {}
-            for name in self.learner_names if learner is None else [learner]:
-                names = [a for a in observations if learner is not None or self._learner_of[a] == name]
-                if names:
-                    batch = np.stack([observations[a] for a in names])
-                    masks = None if action_masks is None else np.stack([action_masks[a] for a in names])
-                    actions, _ = self.learners[name].predict(batch, deterministic=True, w=w, action_masks=masks)
-                    chosen.update(zip(names, actions.tolist(), strict=True))
-            return {agent: chosen[agent] for agent in observations}
-
-        return act
+        acting = self.learners if learner is None else {learner: self.learners[learner]}
+        return greedy_joint_policy(acting, self._learner_of if learner is None else None, w)
 
     def learner_rows(
         self, observations: np.ndarray, weights: np.ndarray, action_masks: np.ndarray | None, agents: list[str]
     ) -> np.ndarray:
-        """
-        :data:`~sb3_sfgpi.common.rollouts.RowPolicy` of :meth:`learner_policy` with a weight per row: each agent's
-        learner acts greedily for its row's weights, by GPI over its support where it is conditioned on the weights.
-        The weights are used as given: validate them once (:func:`~sb3_sfgpi.common.weights.validate_weights`, as
-        :meth:`~sb3_sfgpi.sfdqn.SFDQN.predict` does in every call), not at every step.
-        """
-        actions = np.empty(len(observations), dtype=np.int64)
-        for name, learner in self.learners.items():
-            rows = [i for i, agent in enumerate(agents) if self._learner_of[agent] == name]
-            if rows:
-                q_values, _ = learner.policy.q_values(observations[rows], weights[rows])
-                actions[rows] = masked(q_values, None if action_masks is None else action_masks[rows]).argmax(axis=1)
-        return actions
+        """:meth:`learner_policy` with a weight per row (:func:`~sb3_sfgpi.learners.greedy_rows`)."""
+        return greedy_rows(self.learners, self._learner_of, observations, weights, action_masks, agents)
 
     def rollout(self, policy: JointPolicy, n_episodes: int, seed: int) -> EpisodeReturns:
         """
@@ -534,21 +383,16 @@ class MultiAgentRunner:
     ) -> list[EpisodeReturns] | None:
         """
         :func:`~sb3_sfgpi.common.rollouts.run_lockstep`'s episodes, the last on the shared env and the others on
-        copies built by ``env_fn`` (once, kept): the returns :meth:`rollout` gives one episode after another, and the
-        shared env ends as that leaves it. None where there are no copies: without ``env_fn``, or for an env whose
-        simulator allows one per process (``metadata[ONE_PER_PROCESS]``, SUMO's through libsumo); then
-        :meth:`rollout` runs the episodes.
+        copies built by ``env_fn`` (:class:`~sb3_sfgpi.common.env_copies.SideBySide`): the returns :meth:`rollout`
+        gives one episode after another, and the shared env ends as that leaves it. None where there are no copies
+        (then :meth:`rollout` runs the episodes).
 
         :param per_result: consecutive episodes whose returns form one result
         :param decided: called after every decision with each row's episode (see ``run_lockstep``)
         """
-        if self._env_fn is None or self.env.metadata.get(ONE_PER_PROCESS):
-            return None
-        if not seeds:
-            return []
-        while len(self._env_copies) < len(seeds) - 1:
-            self._env_copies.append(as_parallel_env(self._env_fn(**self._env_kwargs)))
-        envs = [*self._env_copies[: len(seeds) - 1], self.env]
+        envs = self._side_by_side.envs(len(seeds))
+        if not envs:
+            return envs
         returns = run_lockstep(envs, policy, weights, seeds, self.gamma, per_result, decided)
         self._after_rollout()
         return returns
@@ -557,7 +401,7 @@ class MultiAgentRunner:
         """Where training runs on the shared env (``n_envs=1``), start it on a fresh episode."""
         if self.n_envs == 1:
             self.reset_env()
-            self._monitors = {}
+            self._monitor.clear()
 
     def close(self) -> None:
         """
@@ -565,9 +409,7 @@ class MultiAgentRunner:
         itself is the caller's.
         """
         self.copies.close()
-        for env in self._env_copies:
-            env.close()
-        self._env_copies = []
+        self._side_by_side.close()
 
     def learn(
         self, total_timesteps: int, callback: MaybeCallback = None, progress_bar: bool = False

@@ -93,7 +93,8 @@ class FailingChain(ParallelChainEnv):
 
 def make_chain_runner(n_agents: int = 2, seed: int = 0, max_steps: int | None = None) -> MultiAgentRunner:
     """Independent tabular learners (:data:`CHAIN_LEARNER`) on a :class:`ParallelChainEnv`."""
-    from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+    from sb3_sfgpi.learners import default_learner_factory
+    from sb3_sfgpi.multiagent import MultiAgentRunner
 
     return MultiAgentRunner(
         ParallelChainEnv(n_agents, max_steps=max_steps), default_learner_factory(**CHAIN_LEARNER), seed=seed

@@ -15,7 +15,8 @@ from sb3_sfgpi.common.action_masks import checked_masks, info_mask
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.single_agent import AGENT, SingleAgentParallelEnv
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.sfdqn.networks import greedy_actions
 
 TABULAR = dict(policy="TabularPolicy", learning_rate=0.2, gamma=0.9, learning_starts=0, train_freq=1, batch_size=16)

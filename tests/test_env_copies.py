@@ -13,7 +13,8 @@ from parallel_chain import CHAIN_LEARNER, FailingChain, ParallelChainEnv, optima
 from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.env_copies import EnvCopies
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
 
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
 

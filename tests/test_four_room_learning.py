@@ -9,7 +9,8 @@ from sb3_sfgpi.callbacks import OLSCallback, learn_iterations
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.schedules import OLSSchedule
 
 ITERATIONS = 2

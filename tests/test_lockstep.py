@@ -14,7 +14,8 @@ from queue_lights import QueueLights
 from sb3_sfgpi import MASFOLS, EvaluationConfig, GPIPolicy, PadActions
 from sb3_sfgpi.common.rollouts import run_episodes, run_lockstep
 from sb3_sfgpi.common.weights import validate_weights
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.validation import Scored, ValidationScorer
 
 TABULAR = dict(policy="TabularPolicy", learning_rate=0.2, gamma=0.9, learning_starts=0, train_freq=1, batch_size=16)
@@ -90,9 +91,9 @@ def _lights_run(together: bool) -> MASFOLS:
 
 def test_a_runs_test_evaluation_steps_its_weights_together_and_training_goes_on_the_same():
     together, alone = _lights_run(True), _lights_run(False)
-    assert len(together.runner._env_copies) == 2 * len(WEIGHTS) - 1 and not alone.runner._env_copies
+    assert len(together.runner._side_by_side.copies) == 2 * len(WEIGHTS) - 1 and not alone.runner._side_by_side.copies
     together.runner.close()
-    assert not together.runner._env_copies
+    assert not together.runner._side_by_side.copies
     for mine, other in zip(together.history, alone.history, strict=True):
         assert mine["mean_return"] == other["mean_return"]
     assert [info.value.tolist() for info in together.policy_set.infos] == [
@@ -115,7 +116,7 @@ def test_a_conditioned_learners_members_are_valued_together_as_one_after_another
     )  # fmt: skip
     model.learn(max_iterations=2)
     runner = model.runner
-    assert runner._env_copies  # the members' values were estimated together
+    assert runner._side_by_side.copies  # the members' values were estimated together
     given = [info.weights for info in model.policy_set.infos] + [[0.5, 0.5], [0.9, 0.1]]
     weights = np.array([validate_weights(w, 2) for w in given])  # once, as the run does
     seeds = [7 + episode for _ in weights for episode in range(2)]
@@ -158,7 +159,7 @@ def test_validation_steps_its_weights_together_with_the_same_episodes_and_decisi
     alone, together, runner = _scorers()
     whole = alone(random_lights_set)
     _same(whole, together(random_lights_set))
-    assert len(runner._env_copies) == 2 * 6 - 1  # the weights' episodes ran on copies, the last on the env
+    assert len(runner._side_by_side.copies) == 2 * 6 - 1  # the weights' episodes ran on copies, the last on the env
     assert together.rollouts == alone.rollouts == 6 and len(whole.decisive_members()) > 1
     for member in range(len(random_lights_set)):  # leave-one-out: only the weights where the member decided again
         _same(alone.without(random_lights_set, whole, member), together.without(random_lights_set, whole, member))

@@ -10,7 +10,8 @@ from gymnasium import spaces
 from momdp import Fig1MOMDP
 from parallel_chain import ParallelChainEnv
 
-from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.sfdqn import SFDQN
 
 LENGTH, GAMMA, FAR_PRIZE = 20, 0.95, 10.0

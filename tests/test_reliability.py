@@ -222,7 +222,8 @@ def test_the_stop_message_repeats_the_iteration_cap(tmp_path):
 def four_room_tabular_model() -> SFDQN:
     from sfgpi_envs.four_room import FourRoomParallelEnv
 
-    from sb3_sfgpi.multiagent import MultiAgentRunner, default_learner_factory
+    from sb3_sfgpi.learners import default_learner_factory
+    from sb3_sfgpi.multiagent import MultiAgentRunner
 
     runner = MultiAgentRunner(
         FourRoomParallelEnv(observation_mode="own"), default_learner_factory(policy="TabularPolicy")

@@ -16,7 +16,8 @@ from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 from sb3_sfgpi import MASFOLS, EvaluationConfig
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.multiagent import SHARED, MultiAgentRunner, default_learner_factory
+from sb3_sfgpi.learners import default_learner_factory
+from sb3_sfgpi.multiagent import SHARED, MultiAgentRunner
 
 LEARNER_KWARGS = {k: v for k, v in CHAIN_LEARNER.items() if k != "policy"}
 

@@ -16,8 +16,8 @@ from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import summarize_test_episodes
 from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.learners import LearnerFactory, default_learner_factory
 from sb3_sfgpi.masfols import MASFOLS
-from sb3_sfgpi.multiagent import LearnerFactory, default_learner_factory
 from sb3_sfgpi.schedules import RandomSchedule
 
 TEST_WEIGHTS = random_weights(2, 5, rng=0)

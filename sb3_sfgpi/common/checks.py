@@ -9,10 +9,12 @@ the agent and the step, before anything is stored.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Mapping
+import warnings
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 
 
 def env_name(env: Any) -> str:
@@ -44,6 +46,27 @@ def check_finite(value: Any, what: str, env: Any, agent: Any, step: int) -> None
                 f"{name}, agent {agent}, step {step}: the {what} is not finite ({shown}); it was not stored (NaN or "
                 "inf would spread into every successor feature)"
             )
+
+
+def check_homogeneous(env: Any, agents: Sequence[str]) -> None:
+    """
+    Refuse agents whose spaces differ (MA-SFOLS shares policies between agents), or actions that are not Discrete.
+
+    :raises ValueError: naming the space, the agents and what to do
+    """
+    first = agents[0]
+    for agent in agents:
+        for kind in ("observation_space", "action_space", "reward_space"):
+            if getattr(env, kind)(agent) != getattr(env, kind)(first):
+                raise ValueError(
+                    f"MA-SFOLS shares policies between agents: all agents need the same spaces, but the "
+                    f"{kind.replace('_', ' ')} of {agent!r} is {getattr(env, kind)(agent)} and of {first!r} "
+                    f"{getattr(env, kind)(first)}; pad them into one layout that means the same at every agent "
+                    "(TrafficSignalEnv: observation_fn='padded'; Discrete actions: sb3_sfgpi.PadActions(env)), "
+                    "and with sharing='shared' every policy learns at every agent"
+                )
+    if not isinstance(env.action_space(first), spaces.Discrete):
+        raise ValueError(f"SFDQN needs Discrete actions, got {env.action_space(first)}")
 
 
 def check_parallel_reset(env: Any, copy: int, observations: Mapping[str, Any], known: Collection[str]) -> None:
@@ -147,6 +170,28 @@ def _finite(array: np.ndarray) -> bool:
     if array.size <= 64:  # summed in Python floats: float64, so no sum of float32 values overflows
         return math.isfinite(sum(array.ravel().tolist()))
     return bool(np.isfinite(array).all())
+
+
+def warn_of_swapped_flags(
+    terminations: Mapping[str, bool], truncations: Mapping[str, bool], steps: int, time_limit: int
+) -> bool:
+    """
+    Warn where an episode ended with every agent truncated, none terminated, before the env's declared time limit:
+    terminations and truncations swapped?
+
+    :param steps: the episode's steps
+    :return: whether it warned
+    """
+    truncated = all(truncations.get(a, False) and not terminations.get(a, False) for a in truncations)
+    if not truncated or steps >= time_limit:
+        return False
+    warnings.warn(
+        f"every agent was truncated after {steps} steps, before the env's time limit ({time_limit}): does it return "
+        "terminations and truncations swapped (MOMAland 0.2's item gathering and beach do)? Then wrap it in "
+        "sb3_sfgpi.SwapTerminationsTruncations",
+        stacklevel=4,
+    )
+    return True
 
 
 def _where(env: Any, agent: Any, step: int, copy: int) -> str:

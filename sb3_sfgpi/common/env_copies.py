@@ -131,3 +131,37 @@ class EnvCopies:
             if process.is_alive():
                 process.kill()
         self._pipes, self._processes = [], []
+
+
+class SideBySide:
+    """
+    An env and copies of it built in this process (each once, then kept), for episodes run side by side.
+
+    :param env: the env itself, the last of the envs :meth:`envs` gives
+    :param env_fn: the constructor of its copies, or None (then there are none)
+    :param env_kwargs: the constructor's keyword arguments
+    """
+
+    def __init__(self, env: Any, env_fn: Callable[..., Any] | None, env_kwargs: Mapping[str, Any] | None):
+        self.env = env
+        self._env_fn = None if env.metadata.get(ONE_PER_PROCESS) else env_fn
+        self._env_kwargs = dict(env_kwargs or {})
+        #: the copies built so far
+        self.copies: list[Any] = []
+
+    def envs(self, n: int) -> list[Any] | None:
+        """
+        ``n`` envs: ``n − 1`` copies, then the env; None where no copy can be built (no ``env_fn``, or a simulator that
+        allows one instance per process: ``metadata[ONE_PER_PROCESS]``, SUMO's through libsumo).
+        """
+        if self._env_fn is None:
+            return None
+        while len(self.copies) < n - 1:
+            self.copies.append(as_parallel_env(self._env_fn(**self._env_kwargs)))
+        return [*self.copies[: n - 1], self.env] if n else []
+
+    def close(self) -> None:
+        """Close the copies (the env itself is its owner's)."""
+        for env in self.copies:
+            env.close()
+        self.copies = []

@@ -97,11 +97,7 @@ def sampled_td_update(
     target_psi, target_slot_map = target
     observations, next_observations, actions, rewards, dones, timeouts, next_forbidden = storage
     no_masks = np.zeros(0, dtype=np.bool_)
-    missing = False
-    for i in range(flat.shape[0]):
-        rows[i] = table_row(observations, flat[i], strides, first_row)
-        missing = missing or slot_map[rows[i]] < 0
-    if missing:
+    if not _stored_rows(observations, flat, strides, first_row, slot_map, rows):
         return STORE_ROWS
     for i in range(flat.shape[0]):
         f = flat[i]
@@ -120,11 +116,42 @@ def sampled_td_update(
             td_error[i, k] = target_value - psi[slot, action, k]
             if not np.isfinite(td_error[i, k]):
                 return DIVERGED
+    return UPDATED if _add_td_errors(psi, slot_map, rows, actions, flat, lr, td_error) else DIVERGED
+
+
+@njit(cache=True, nogil=True)
+def _stored_rows(
+    observations: np.ndarray,
+    flat: np.ndarray,
+    strides: np.ndarray,
+    first_row: int,
+    slot_map: np.ndarray,
+    rows: np.ndarray,
+) -> bool:
+    """Write the table row of each observation at ``flat`` into ``rows``; return whether the table stores them all."""
+    stored = True
+    for i in range(flat.shape[0]):
+        rows[i] = table_row(observations, flat[i], strides, first_row)
+        stored = stored and slot_map[rows[i]] >= 0
+    return stored
+
+
+@njit(cache=True, nogil=True)
+def _add_td_errors(
+    psi: np.ndarray,
+    slot_map: np.ndarray,
+    rows: np.ndarray,
+    actions: np.ndarray,
+    flat: np.ndarray,
+    lr: np.float32,
+    td_error: np.ndarray,
+) -> bool:
+    """``ψ(s, a) += lr · δ``, transition after transition; False at the first value beyond float32."""
     for i in range(flat.shape[0]):
         slot, action = slot_map[rows[i]], actions[flat[i]]
         for k in range(psi.shape[2]):
             value = psi[slot, action, k] + lr * td_error[i, k]
             if not np.isfinite(value):
-                return DIVERGED
+                return False
             psi[slot, action, k] = value
-    return UPDATED
+    return True
