@@ -35,7 +35,10 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from sfgpi_envs.domains import four_room
 from sb3_sfgpi.multiagent import MultiAgentRunner
-from sb3_sfgpi.learners import default_learner_factory
+try:
+    from sb3_sfgpi.learners import default_learner_factory
+except ImportError:  # a tree from before that module
+    from sb3_sfgpi.multiagent import default_learner_factory
 
 class Fixed(BaseCallback):
     def _on_step(self):
