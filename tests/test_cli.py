@@ -80,7 +80,7 @@ def test_value_mode_is_the_domains_unless_given(run_dir, tmp_path):
 def test_refused_settings_leave_no_run_directory(tmp_path, capsys):
     out = tmp_path / "nested" / "refused"
     assert main([*TRAIN, "--learner", "bogus=1", "--out", str(out)]) == 2
-    assert "bad learner options" in capsys.readouterr().err and not out.exists()
+    assert "learner argument 'bogus' is not taken from a run file" in capsys.readouterr().err and not out.exists()
     kept = tmp_path / "kept"
     kept.mkdir()
     assert main([*TRAIN, "--learner", "bogus=1", "--out", str(kept)]) == 2
