@@ -10,7 +10,6 @@ from __future__ import annotations
 import itertools
 import os
 import zipfile
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,7 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
-from sb3_sfgpi.sfdqn.networks import SFNetwork
+from sb3_sfgpi.sfdqn.networks import SFNetwork, non_finite_key
 from sb3_sfgpi.tabular.network import TabularSFNetwork, observation_radices
 
 _ACTIVATIONS = {name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Identity")}
@@ -165,17 +164,6 @@ def read_state_dict(directory: Path, file: str, max_bytes: int | None = None) ->
     if key is not None:
         raise CorruptPolicySetError(f"policy file {path} holds non-finite values (NaN or inf) in {key!r}")
     return state
-
-
-def non_finite_key(state: Mapping[str, th.Tensor]) -> str | None:
-    """
-    The first tensor of a network's state dict that is not finite in float32, the networks' and tables' dtype (a
-    float64 1e39 is finite, and inf once loaded), or None.
-    """
-    for key, value in state.items():
-        if value.is_floating_point() and not bool(th.isfinite(value.to(th.float32)).all()):
-            return key
-    return None
 
 
 def _check_unpacked_size(path: Path, max_bytes: int) -> None:

@@ -6,6 +6,7 @@ the Q-values for preference weights ``w`` are ``ψ · w``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -131,3 +132,14 @@ class SFNetwork(BasePolicy):
             features_extractor=self.features_extractor,
         )
         return data
+
+
+def non_finite_key(state: Mapping[str, th.Tensor]) -> str | None:
+    """
+    The first tensor of a network's state dict that is not finite in float32, the networks' and tables' dtype (a
+    float64 1e39 is finite, and inf once loaded), or None.
+    """
+    for key, value in state.items():
+        if value.is_floating_point() and not bool(th.isfinite(value.to(th.float32)).all()):
+            return key
+    return None

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from sb3_sfgpi.policy_files import non_finite_key
+from sb3_sfgpi.sfdqn.networks import non_finite_key
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
 
 #: The replay buffer's arrays a state holds (those the buffer has), their stored rows only.
