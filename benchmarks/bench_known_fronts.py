@@ -42,9 +42,7 @@ from sfgpi_envs.resource_gathering_optimum import resource_gathering_mdp
 from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_tree_mdp
 
 from benchmarks._common import MORL_MISSING, Row
-from sb3_sfgpi import MASFOLS, EvaluationConfig
-from sb3_sfgpi.admission import Admission
-from sb3_sfgpi.callbacks import ValueEstimation
+from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, TABULAR_LEARNER, TABULAR_POOL_REPLAY, gym_preset
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
 from sb3_sfgpi.common.rollouts import run_episodes
@@ -194,10 +192,10 @@ def _train_sfols(
     assert preset is not None, f"{problem.env_id} is not a registered Gymnasium id"
     masfols = MASFOLS(
         _make_env(problem), policy=policy, steps_per_iteration=steps, learner_kwargs=learner,
-        values=ValueEstimation(episodes=preset["value_episodes"]),
-        admission=Admission(validation_weights=preset["validation_weights"]),
+        value_episodes=preset["value_episodes"],
+        validation_weights=preset["validation_weights"],
         pool_replay=problem.tabular and TABULAR_POOL_REPLAY,
-        evaluation=EvaluationConfig(weights, episodes=problem.eval_episodes), seed=seed,
+        test_weights=weights, eval_episodes=problem.eval_episodes, seed=seed,
     )  # fmt: skip
     start = time.perf_counter()
     try:

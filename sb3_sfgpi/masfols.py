@@ -9,7 +9,6 @@ from its directory with :meth:`MASFOLS.load`.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -57,21 +56,28 @@ class MASFOLS:
     :param sharing: ``"independent"``: one learner per agent, each trained for its own weights (the paper's
         setting); ``"shared"``: parameter sharing, one learner per iteration that every agent acts with and feeds
         (one weight per iteration, trained on all the agents' transitions; for many homogeneous agents)
-    :param values: how the value vector of a new policy is estimated (default: the new learners acting together)
-    :param admission: which new policies join Π (default: every one, as in the paper)
     :param pool_replay: pool the transitions of every iteration into one empirical model and, after every iteration,
         plan the SF tables of the new policies and of Π's on it for their own weights, before the values are
         estimated and validation scores GPI (see :mod:`sb3_sfgpi.tabular.pooling`). Single-agent envs (one agent: its
         dynamics do not depend on the policy) and ``TabularPolicy`` only; the run directory keeps what each
         iteration added, so that a resumed run is the same
-    :param evaluation: how GPI is evaluated after every iteration: its ``test_weights`` are an array ``(n, d)``, a
-        number ``n`` of Dirichlet(1) weights drawn with seed 0, or None (12 such weights; fixed weights: those);
-        ``workers > 0`` evaluates in worker processes built by its ``env_fn`` (default: this ``env_fn``)
+    :param test_weights: the weights GPI is evaluated at after every iteration: an array ``(n, d)``, a number ``n`` of
+        Dirichlet(1) weights drawn with seed 0, or None (12 such weights; fixed weights: those)
+    :param eval_episodes: episodes per test weight
+    :param gpi_set: GPI's evaluation acts over ``"all"`` of Π or only the policies whose values form its CCS
+        (``"ccs"``)
+    :param value_mode: how the value vector of a new policy is estimated
+        (:class:`~sb3_sfgpi.callbacks.ValueEstimation`): ``"joint"``, the new learners acting together, or ``"shared"``
+    :param value_episodes: episodes of that estimate
+    :param validation_weights: which new policies join Π (:class:`~sb3_sfgpi.admission.Admission`): 0, every one
+        (the paper); ``n > 0``, those that raise GPI's score on ``n`` validation weights
+    :param prune: also retire the members of Π whose removal does not lower that score
+    :param admit_together: admit an iteration's new policies together, not one after another
     :param n_envs: train on this many copies of the env, each in its own process (``env_fn``), stepped together: a
         learner has a slot per agent and copy. 1: train on ``env`` (evaluations always run on ``env``)
     :param env_fn: picklable constructor of the env's copies and of the evaluation workers, called without
-        arguments (e.g. ``functools.partial(MyEnv, **kwargs)``): required when ``n_envs > 1`` or the evaluation
-        has workers of its own
+        arguments (e.g. ``functools.partial(MyEnv, **kwargs)``): required when ``n_envs > 1`` or ``eval_workers > 0``
+    :param eval_workers: worker processes of GPI's evaluation (0: in this process; they do not change its results)
     :param seed: the run's seed (learners, resets and random weights derive theirs from it)
     :param run_dir: where Π, evaluations, checkpoints and logs go (None: nowhere). :attr:`run_info` is written to
         its ``run.json`` when :meth:`learn` starts
@@ -88,71 +94,70 @@ class MASFOLS:
         ols_batch: str = RunSettings.ols_batch,
         steps_per_iteration: int = RunSettings.steps_per_iteration,
         learner_kwargs: Mapping[str, Any] | None = None,
-        sharing: str = RunSettings.sharing,
-        values: ValueEstimation | None = None,
-        admission: Admission | None = None,
-        pool_replay: bool = RunSettings.pool_replay,
-        evaluation: EvaluationConfig | None = None,
-        n_envs: int = RunSettings.n_envs,
-        env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
+        test_weights: Any = RunSettings.test_weights,
         seed: int = RunSettings.seed,
+        value_mode: str = RunSettings.value_mode,
+        value_episodes: int = RunSettings.value_episodes,
+        eval_episodes: int = RunSettings.eval_episodes,
+        gpi_set: str = RunSettings.gpi_set,
+        validation_weights: int = RunSettings.validation_weights,
+        prune: bool = RunSettings.prune,
+        admit_together: bool = RunSettings.admit_together,
+        sharing: str = RunSettings.sharing,
+        n_envs: int = RunSettings.n_envs,
+        pool_replay: bool = RunSettings.pool_replay,
+        env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
         run_dir: str | Path | None = None,
+        eval_workers: int = 0,
         verbose: int = 0,
     ):
         learner_kwargs = dict(learner_kwargs or {})
-        values, admission = values or ValueEstimation(), admission or Admission(verbose=verbose)
-        self.runner = MultiAgentRunner(
-            env,
-            seed=seed,
-            gamma=learner_kwargs.get("gamma", GAMMA),
-            tensorboard_log=None if run_dir is None else str(RunDirectory(run_dir).tensorboard_dir),
-            sharing=sharing,
-            n_envs=n_envs,
-            env_fn=env_fn,
+        self.runner = _runner(
+            env, policy, steps_per_iteration, learner_kwargs, seed, sharing, n_envs, env_fn, run_dir, pool_replay
         )
-        slots = max(len(slots) for slots in self.runner.slots.values())
-        goes_on = policy in SFDQN.policy_aliases and issubclass(SFDQN.policy_aliases[policy], ConditionedPolicy)
-        sized = learner_kwargs if goes_on else replay_sized(learner_kwargs, steps_per_iteration, slots)
-        self.runner.learner_factory = default_learner_factory(policy=policy, **sized)
-        self.runner.check_learner()
-        if pool_replay:
-            _check_poolable(self.runner, policy)
-        fixed = not isinstance(weights, str)
-        evaluation = self._evaluation(evaluation or EvaluationConfig(), weights if fixed else None, sharing, env_fn)
+        fixed = None if isinstance(weights, str) else weights
+        evaluation = self._evaluation(test_weights, eval_episodes, gpi_set, eval_workers, fixed, sharing, env_fn)
         self.run_dir = None if run_dir is None else RunDirectory(run_dir)
         self.settings = RunSettings(
             policy=policy,
-            weights=weights if isinstance(weights, str) else np.asarray(weights, dtype=np.float64).tolist(),
+            weights=weights if fixed is None else np.asarray(weights, dtype=np.float64).tolist(),
             ols_batch=ols_batch,
             steps_per_iteration=steps_per_iteration,
             learner_kwargs=learner_kwargs,
             test_weights=evaluation.test_weights.tolist(),
             seed=seed,
-            value_mode=values.mode,
-            value_episodes=values.episodes,
-            eval_episodes=evaluation.episodes,
-            gpi_set=evaluation.gpi_set,
-            validation_weights=admission.validation_weights,
-            prune=admission.prune,
-            admit_together=admission.together,
+            value_mode=value_mode,
+            value_episodes=value_episodes,
+            eval_episodes=eval_episodes,
+            gpi_set=gpi_set,
+            validation_weights=validation_weights,
+            prune=prune,
+            admit_together=admit_together,
             sharing=sharing,
             n_envs=n_envs,
             pool_replay=pool_replay,
         )
         self.callback = OLSCallback(
-            make_schedule(weights, ols_batch), steps_per_iteration, evaluation, values, admission, self.run_dir,
+            make_schedule(weights, ols_batch), steps_per_iteration, evaluation,
+            ValueEstimation(value_mode, value_episodes),
+            Admission(validation_weights, prune=prune, together=admit_together, verbose=verbose), self.run_dir,
             verbose=verbose, pooled=PooledReplay(self.runner.gamma) if pool_replay else None,
         )  # fmt: skip
-        #: What :meth:`learn` writes to ``run.json``: the settings, and any plain data added here (the CLI adds the
-        #: domain and the env's arguments)
+        #: What :meth:`learn` writes to ``run.json``: the settings and plain data added here (the CLI: domain, env)
         self.run_info: dict[str, Any] = self.settings.to_json()
         self._logs_open = False  # logs/ is opened by the first learn(), under the run directory's lock
 
     def _evaluation(
-        self, config: EvaluationConfig, fixed: Any, sharing: str, env_fn: Callable[[], ParallelEnv] | None
+        self,
+        test_weights: Any,
+        episodes: int,
+        gpi_set: str,
+        workers: int,
+        fixed: Any,
+        sharing: str,
+        env_fn: Callable[[], ParallelEnv | gym.Env] | None,
     ) -> EvaluationConfig:
-        """The evaluation with its test weights drawn, its agents' policies chosen and its workers' env."""
-        test_weights = config.test_weights
+        """GPI's evaluation: its test weights drawn, its agents' policies chosen, its workers' env."""
         if test_weights is None and fixed is not None:
             test_weights = np.array([fixed], dtype=np.float64)
         elif test_weights is None or np.ndim(test_weights) == 0:
@@ -160,12 +165,10 @@ class MASFOLS:
             if n < 1:
                 raise ValueError(f"test_weights must be a positive number of weights or an array, got {n}")
             test_weights = random_weights(self.runner.reward_dim, n, rng=0)
-        policies = "own" if acts_by_own_policies(fixed is not None, sharing) else "shared"
-        env_fn = config.env_fn or env_fn
-        config = dataclasses.replace(config, test_weights=test_weights, policies=policies, env_fn=env_fn)
-        if config.workers > 0 and config.env_fn is None:
+        if workers > 0 and env_fn is None:
             raise ValueError("an evaluation with workers needs env_fn to build the workers' envs")
-        return config
+        policies = "own" if acts_by_own_policies(fixed is not None, sharing) else "shared"
+        return EvaluationConfig(test_weights, episodes, policies, gpi_set=gpi_set, workers=workers, env_fn=env_fn)
 
     @classmethod
     def from_settings(
@@ -182,28 +185,8 @@ class MASFOLS:
 
         :param eval_workers: worker processes of the GPI evaluation (they do not change its results)
         """
-        return cls(
-            env,
-            policy=settings.policy,
-            weights=settings.weights,
-            ols_batch=settings.ols_batch,
-            steps_per_iteration=settings.steps_per_iteration,
-            learner_kwargs=settings.learner_kwargs,
-            sharing=settings.sharing,
-            values=ValueEstimation(settings.value_mode, settings.value_episodes),
-            admission=Admission(
-                settings.validation_weights, prune=settings.prune, together=settings.admit_together, verbose=verbose
-            ),
-            pool_replay=settings.pool_replay,
-            evaluation=EvaluationConfig(
-                settings.test_weights, settings.eval_episodes, gpi_set=settings.gpi_set, workers=eval_workers
-            ),
-            n_envs=settings.n_envs,
-            env_fn=env_fn,
-            seed=settings.seed,
-            run_dir=run_dir,
-            verbose=verbose,
-        )
+        fields = {name: getattr(settings, name) for name in RunSettings.names()}
+        return cls(env, **fields, env_fn=env_fn, run_dir=run_dir, eval_workers=eval_workers, verbose=verbose)
 
     @classmethod
     def load(cls, run_dir: str | Path, env: ParallelEnv | gym.Env, **kwargs: Any) -> MASFOLS:
@@ -280,3 +263,35 @@ def _check_poolable(runner: MultiAgentRunner, policy: str) -> None:
         )
     if policy != "TabularPolicy":
         raise ValueError(f"pool_replay plans SF tables: policy must be 'TabularPolicy', got {policy!r}")
+
+
+def _runner(
+    env: ParallelEnv | gym.Env,
+    policy: str,
+    steps_per_iteration: int,
+    learner_kwargs: dict[str, Any],
+    seed: int,
+    sharing: str,
+    n_envs: int,
+    env_fn: Callable[[], ParallelEnv | gym.Env] | None,
+    run_dir: str | Path | None,
+    pool_replay: bool,
+) -> MultiAgentRunner:
+    """The runner of the learners, its learner options checked on one learner built and dropped."""
+    runner = MultiAgentRunner(
+        env,
+        seed=seed,
+        gamma=learner_kwargs.get("gamma", GAMMA),
+        tensorboard_log=None if run_dir is None else str(RunDirectory(run_dir).tensorboard_dir),
+        sharing=sharing,
+        n_envs=n_envs,
+        env_fn=env_fn,
+    )
+    slots = max(len(slots) for slots in runner.slots.values())
+    goes_on = policy in SFDQN.policy_aliases and issubclass(SFDQN.policy_aliases[policy], ConditionedPolicy)
+    sized = learner_kwargs if goes_on else replay_sized(learner_kwargs, steps_per_iteration, slots)
+    runner.learner_factory = default_learner_factory(policy=policy, **sized)
+    runner.check_learner()
+    if pool_replay:
+        _check_poolable(runner, policy)
+    return runner

@@ -121,7 +121,7 @@ def test_pad_actions_gives_gem_minings_villages_one_space_with_masks():
 def test_masfols_trains_gem_mining_padded_and_never_sends_a_village_to_a_mine_it_lacks(tmp_path):
     """PadActions refuses a padded action: any masked action executed in training or by GPI fails the run."""
     mogem_mining_v0 = pytest.importorskip("momaland.envs.gem_mining.mogem_mining_v0")
-    from sb3_sfgpi import MASFOLS, EvaluationConfig
+    from sb3_sfgpi import MASFOLS
 
     gem_mining = mogem_mining_v0.parallel_env(num_timesteps=10, trunc_probability=0.0)
     # MOMAland 0.2.0 keeps each village's workers as a one-element list, which NumPy 2 refuses to add to a count.
@@ -131,7 +131,8 @@ def test_masfols_trains_gem_mining_padded_and_never_sends_a_village_to_a_mine_it
         policy="MlpPolicy",
         steps_per_iteration=60,
         learner_kwargs=dict(learning_starts=10, buffer_size=1_000, exploration_fraction=0.5),
-        evaluation=EvaluationConfig([[1.0, 0.0], [0.5, 0.5]], episodes=1),
+        test_weights=[[1.0, 0.0], [0.5, 0.5]],
+        eval_episodes=1,
         seed=0,
     )
     masfols.learn(max_iterations=1)

@@ -10,7 +10,7 @@ import pytest
 from momdp import REWARDS, TERMINAL
 from parallel_chain import CHAIN_LEARNER, FailingChain, ParallelChainEnv, optimal_value
 
-from sb3_sfgpi import MASFOLS, EvaluationConfig
+from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.env_copies import EnvCopies
 from sb3_sfgpi.learners import default_learner_factory
@@ -47,7 +47,7 @@ def test_ma_sfols_on_two_copies_finds_the_exact_ccs_and_continues_exactly(tmp_pa
     def make(run_dir):
         return MASFOLS(
             ParallelChainEnv(2), steps_per_iteration=300, learner_kwargs=LEARNER_KWARGS,
-            evaluation=EvaluationConfig(3), seed=2, n_envs=2, env_fn=functools.partial(ParallelChainEnv, n_agents=2),
+            test_weights=3, seed=2, n_envs=2, env_fn=functools.partial(ParallelChainEnv, n_agents=2),
             run_dir=run_dir,
         )  # fmt: skip
 

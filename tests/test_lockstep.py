@@ -11,7 +11,7 @@ from conftest import random_tabular_network
 from momdp import Fig1MOMDP
 from queue_lights import QueueLights
 
-from sb3_sfgpi import MASFOLS, EvaluationConfig, GPIPolicy, PadActions
+from sb3_sfgpi import MASFOLS, GPIPolicy, PadActions
 from sb3_sfgpi.common.rollouts import run_episodes, run_lockstep
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.learners import default_learner_factory
@@ -84,7 +84,7 @@ def _lights_run(together: bool) -> MASFOLS:
     model = MASFOLS(
         padded_lights(), policy="TabularPolicy", steps_per_iteration=600,
         learner_kwargs=dict(learning_rate=0.2, gamma=0.9, learning_starts=0, batch_size=16),
-        evaluation=EvaluationConfig(WEIGHTS, episodes=2), seed=0, env_fn=padded_lights if together else None,
+        test_weights=WEIGHTS, eval_episodes=2, seed=0, env_fn=padded_lights if together else None,
     )  # fmt: skip
     return model.learn(max_iterations=3)
 

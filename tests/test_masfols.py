@@ -12,10 +12,7 @@ from stable_baselines3.common.logger import TensorBoardOutputFormat
 from tensorboard_scalars import scalar_steps
 
 from sb3_sfgpi import masfols
-from sb3_sfgpi.admission import Admission
-from sb3_sfgpi.callbacks import ValueEstimation
 from sb3_sfgpi.common.weights import random_weights
-from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.run_settings import RunSettings
@@ -26,16 +23,14 @@ TEST_WEIGHTS = random_weights(2, 5, rng=0)
 OBS = np.arange(5)
 
 
-def make(steps: int = 300, n_agents: int = 2, test_weights=TEST_WEIGHTS, admission=None, **kwargs) -> MASFOLS:
-    """MASFOLS on the chain, evaluated on ``test_weights``; ``admission``: the :class:`Admission`'s arguments."""
-    kwargs = {"evaluation": EvaluationConfig(test_weights), **kwargs}
-    if admission is not None:
-        kwargs["admission"] = Admission(**admission)  # a fresh one per model
+def make(steps: int = 300, n_agents: int = 2, test_weights=TEST_WEIGHTS, **kwargs) -> MASFOLS:
+    """MASFOLS on the chain, evaluated on ``test_weights``."""
     return MASFOLS(
         ParallelChainEnv(n_agents),
         policy="TabularPolicy",
         steps_per_iteration=steps,
         learner_kwargs=LEARNER_KWARGS,
+        test_weights=test_weights,
         **kwargs,
     )
 
@@ -111,10 +106,10 @@ def test_run_dir_holds_the_settings_and_the_iterations(tmp_path):
     [
         {"weights": "ols"},
         {"weights": "random"},
-        {"weights": "random", "admission": {"validation_weights": 3}},
-        {"weights": "random", "admission": {"validation_weights": 3, "prune": True, "together": True}},
+        {"weights": "random", "validation_weights": 3},
+        {"weights": "random", "validation_weights": 3, "prune": True, "admit_together": True},
         {"weights": "random", "sharing": "shared"},
-        {"weights": "ols", "values": ValueEstimation("shared", 2), "ols_batch": "same-after-extrema"},
+        {"weights": "ols", "value_mode": "shared", "value_episodes": 2, "ols_batch": "same-after-extrema"},
     ],
 )
 def test_load_continues_a_run_as_if_it_had_not_stopped(tmp_path, options):

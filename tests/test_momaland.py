@@ -9,15 +9,13 @@ import pytest
 from gymnasium import spaces
 from pettingzoo.test import parallel_api_test
 
-from sb3_sfgpi import MASFOLS, EvaluationConfig, FlattenObservations, SwapTerminationsTruncations
+from sb3_sfgpi import MASFOLS, FlattenObservations, SwapTerminationsTruncations
 from sb3_sfgpi.common.parallel_wrappers import needs_flattening
 
 moitem_gathering_v0 = pytest.importorskip("momaland.envs.item_gathering.moitem_gathering_v0")
 mobeach_v0 = pytest.importorskip("momaland.envs.beach.mobeach_v0")
 
-SMALL = dict(
-    steps_per_iteration=200, evaluation=EvaluationConfig(3), learner_kwargs=dict(learning_starts=50, batch_size=16)
-)
+SMALL = dict(steps_per_iteration=200, test_weights=3, learner_kwargs=dict(learning_starts=50, batch_size=16))
 TINY_MAP = np.array([[1, 3, 4], [4, 3, 1]])  # two agents, two items of each of two kinds: gathered within a few steps
 
 

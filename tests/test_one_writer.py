@@ -11,7 +11,7 @@ import pytest
 from conftest import FEW_VALIDATION, tiny_four_room
 from sfgpi_envs import FourRoomParallelEnv
 
-from sb3_sfgpi import MASFOLS, EvaluationConfig
+from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.run_directory import RunDirectory, RunDirectoryBusy
 
@@ -139,7 +139,7 @@ def test_masfols_learn_holds_the_lock_too(tmp_path):
         model = MASFOLS(
             FourRoomParallelEnv(max_steps=30),
             steps_per_iteration=100,
-            evaluation=EvaluationConfig(test_weights=2),
+            test_weights=2,
             run_dir=out,
         )
         with pytest.raises(RunDirectoryBusy, match=f"pid {holder.pid} on "):

@@ -12,8 +12,6 @@ from gymnasium import spaces
 from momdp import N_ACTIONS, N_STATES, REWARD_DIM, REWARDS, TERMINAL, Fig1MOMDP, optimal_value, successor_features
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv
 
-from sb3_sfgpi.admission import Admission
-from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.policy_files import file_state
@@ -151,7 +149,7 @@ def resource_gathering_run(run_dir, **kwargs) -> MASFOLS:
     learner.pop("policy")
     return MASFOLS(
         mo.make("resource-gathering-v0"), steps_per_iteration=400, learner_kwargs=learner, pool_replay=True,
-        admission=Admission(validation_weights=2), evaluation=EvaluationConfig(3, episodes=2), seed=5,
+        validation_weights=2, test_weights=3, eval_episodes=2, seed=5,
         run_dir=run_dir, **kwargs,
     )  # fmt: skip
 

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from momdp import REWARDS, TERMINAL
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 
-from sb3_sfgpi import MASFOLS, EvaluationConfig
+from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.learners import default_learner_factory
@@ -100,7 +100,7 @@ def test_shared_ma_sfols_finds_the_exact_ccs_on_the_chain():
         ParallelChainEnv(2),
         steps_per_iteration=600,
         learner_kwargs=LEARNER_KWARGS,
-        evaluation=EvaluationConfig(3),
+        test_weights=3,
         sharing="shared",
     ).learn(max_iterations=10)
     assert model.callback.ended_by_schedule and len(model.history) < 10
@@ -159,7 +159,7 @@ def test_beach_with_twenty_agents_trains_one_shared_learner():
         env,
         policy="MlpPolicy",
         steps_per_iteration=100,
-        evaluation=EvaluationConfig(2),
+        test_weights=2,
         learner_kwargs=learner,
         sharing="shared",
     ).learn(max_iterations=2)

@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_sfgpi import MASFOLS, SFDQN, EvaluationConfig, GPIPolicy
+from sb3_sfgpi import MASFOLS, SFDQN, GPIPolicy
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.single_agent import AGENT, SingleAgentParallelEnv
 from sb3_sfgpi.common.weights import random_weights
@@ -56,9 +56,7 @@ def test_scalar_reward_and_turn_based_envs_are_refused_in_one_line():
 def test_sfols_reaches_the_true_front_of_deep_sea_treasure():
     """Two iterations of 10,000 steps: GPI over the set reaches the exact optimum on 20 test weights (EU/EU* ≥ 0.99)."""
     test_weights = random_weights(2, 20, rng=0)
-    model = MASFOLS(
-        mo.make(DST), steps_per_iteration=10_000, learner_kwargs=LEARNER, evaluation=EvaluationConfig(test_weights)
-    )
+    model = MASFOLS(mo.make(DST), steps_per_iteration=10_000, learner_kwargs=LEARNER, test_weights=test_weights)
     model.learn(max_iterations=2)
     returns = np.array([test["agents"][AGENT]["discounted"] for test in model.history[-1]["test"]])
     assert returns.shape == (20, 2)
@@ -89,7 +87,7 @@ def test_relative_optimism_is_read_from_the_reward_space():
 
 def test_copies_of_a_gymnasium_env_train_in_their_processes():
     model = MASFOLS(
-        mo.make(DST), steps_per_iteration=400, learner_kwargs=dict(learning_starts=50), evaluation=EvaluationConfig(2),
+        mo.make(DST), steps_per_iteration=400, learner_kwargs=dict(learning_starts=50), test_weights=2,
         n_envs=2, env_fn=functools.partial(mo.make, DST),
     )  # fmt: skip
     try:

@@ -14,7 +14,7 @@ from conftest import FIG1_TABULAR_KWARGS
 from momdp import Fig1MOMDP
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv
 
-from sb3_sfgpi import MASFOLS, EvaluationConfig
+from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.gpi import MANIFEST, CorruptPolicySetError, GPIPolicy
@@ -95,7 +95,7 @@ def test_masfols_stops_at_the_step_a_bad_reward_or_agent_appears(fault, message)
         BadChain(fault, at=6),
         steps_per_iteration=300,
         learner_kwargs=LEARNER_KWARGS,
-        evaluation=EvaluationConfig(test_weights=2),
+        test_weights=2,
     )
     with pytest.raises(ValueError, match=message):
         model.learn(1)

@@ -10,7 +10,7 @@ from gymnasium import spaces
 from parallel_chain import ParallelChainEnv
 from queue_lights import QueueLights
 
-from sb3_sfgpi import MASFOLS, EvaluationConfig
+from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
 from sb3_sfgpi.common.rollouts import run_episodes
 
@@ -100,7 +100,7 @@ def test_supersuits_padded_actions_are_masked_and_never_taken():
     assert "action_mask" not in infos["light_1"]  # its own three actions: nothing padded
     model = MASFOLS(
         ss.pad_action_space_v0(QueueLights((2, 3))), policy="TabularPolicy", steps_per_iteration=300, seed=0,
-        learner_kwargs=dict(learning_starts=0, batch_size=8), evaluation=EvaluationConfig([[0.5, 0.5]]),
+        learner_kwargs=dict(learning_starts=0, batch_size=8), test_weights=[[0.5, 0.5]],
     )  # fmt: skip
     model.learn(max_iterations=1)
     gpi, taken = model.policy_set.joint_policy([0.5, 0.5]), []
@@ -127,7 +127,7 @@ def test_masfols_trains_on_a_supersuit_pipeline():
     env = ss.frame_stack_v1(ss.normalize_obs_v0(ss.dtype_v0(mobeach_v0.parallel_env(num_agents=2), np.float32)), 2)
     model = MASFOLS(
         env, policy="MlpPolicy", steps_per_iteration=60, learner_kwargs=MLP, seed=0,
-        evaluation=EvaluationConfig([[1.0, 0.0], [0.5, 0.5]]),
+        test_weights=[[1.0, 0.0], [0.5, 0.5]],
     )  # fmt: skip
     model.learn(max_iterations=1)
     assert len(model.policy_set) >= 1 and model.policy_set.observation_space.shape == (2 * 5,)  # 5 features, 2 frames

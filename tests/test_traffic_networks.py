@@ -17,7 +17,7 @@ traci = pytest.importorskip("traci")
 
 from sfgpi_envs.traffic import EPISODE_METRIC_KEYS, TrafficSignalEnv, run_program_episode  # noqa: E402
 
-from sb3_sfgpi import MASFOLS, EvaluationConfig  # noqa: E402
+from sb3_sfgpi import MASFOLS  # noqa: E402
 from sb3_sfgpi.cli import main  # noqa: E402
 from sb3_sfgpi.evaluation_jobs import EvaluationJob, run_job  # noqa: E402
 from sb3_sfgpi.gpi import GPIPolicy  # noqa: E402
@@ -229,7 +229,7 @@ def test_padded_phase_actions_are_masked_and_no_masked_green_is_ever_shown():
     learner = {"learning_starts": 5, "batch_size": 8, "buffer_size": 1000, "policy_kwargs": {"net_arch": [16]}}
     masfols = MASFOLS(
         env, policy="MlpPolicy", steps_per_iteration=40, learner_kwargs=learner, seed=0,
-        evaluation=EvaluationConfig([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]], episodes=1),
+        test_weights=[[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]], eval_episodes=1,
     )  # fmt: skip
     try:
         masfols.learn(max_iterations=1)

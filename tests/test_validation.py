@@ -119,7 +119,7 @@ def test_validation_is_refused_where_agents_act_on_their_own_policies():
         own = EvaluationConfig(TEST_WEIGHTS, policies="own")
         OLSCallback(RandomSchedule(), 10, own, admission=Admission(2))
     with pytest.raises(ValueError, match="own"):
-        MASFOLS(ParallelChainEnv(2), weights=[0.5, 0.5], admission=Admission(2))
+        MASFOLS(ParallelChainEnv(2), weights=[0.5, 0.5], validation_weights=2)
 
 
 # --- pruning --------------------------------------------------------------------------------------------------------
