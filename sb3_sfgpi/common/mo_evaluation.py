@@ -61,11 +61,7 @@ def mo_evaluate_policy(
     :raises ValueError: ``n_eval_episodes < 1``, ``gamma`` outside ``(0, 1]``, a model without ``predict``, a
         scalar-reward env, or a VecEnv or wrapper that breaks vector rewards
     """
-    _check_predictor(model)
-    if isinstance(n_eval_episodes, bool) or not isinstance(n_eval_episodes, (int, np.integer)) or n_eval_episodes < 1:
-        raise ValueError(f"n_eval_episodes must be an integer of at least 1, got {n_eval_episodes!r}")
-    if not 0.0 < gamma <= 1.0:
-        raise ValueError(f"gamma must be in (0, 1], got {gamma}")
+    _check_arguments(model, n_eval_episodes, gamma)
     venv = wrap_mo_env(env)
     episodes = _EpisodeRecorder(venv, int(n_eval_episodes), gamma)
     observations = venv.reset()
@@ -86,8 +82,15 @@ def mo_evaluate_policy(
     return returns.mean(axis=0), returns.std(axis=0)
 
 
-def _check_predictor(model: Any) -> None:
-    """Refuse in one line a model whose ``predict`` SB3's call would not fit (e.g. a GPI set not bound to a weight)."""
+def _check_arguments(model: Any, n_eval_episodes: Any, gamma: float) -> None:
+    """
+    Refuse in one line a count of episodes or a discount out of range, or a model whose ``predict`` SB3's call would
+    not fit (e.g. a GPI set not bound to a weight).
+    """
+    if isinstance(n_eval_episodes, bool) or not isinstance(n_eval_episodes, (int, np.integer)) or n_eval_episodes < 1:
+        raise ValueError(f"n_eval_episodes must be an integer of at least 1, got {n_eval_episodes!r}")
+    if not 0.0 < gamma <= 1.0:
+        raise ValueError(f"gamma must be in (0, 1], got {gamma}")
     predict = getattr(model, "predict", None)
     if not callable(predict):
         raise ValueError(f"{type(model).__name__} has no predict(observation, state, episode_start, deterministic)")
