@@ -24,8 +24,8 @@ class StepSize:
     The optimizer of a table: the learning rate ``α`` in ``param_groups``, as SB3's schedules set it.
 
     :meth:`TabularPolicy.td_update` updates the table in place, so there is nothing to optimise; a torch optimizer
-    would only hold ``α``, and building one imports ``torch._dynamo`` and SymPy (68 MB and 1.5 s of every tabular
-    run). The state dict has ``torch.optim.SGD``'s layout: models saved with either load with either.
+    would only hold ``α``, and building one imports ``torch._dynamo`` and SymPy, which a tabular run never needs.
+    The state dict has ``torch.optim.SGD``'s layout: models saved with either load with either.
 
     :param params: ignored (a table has no torch parameters), as an optimizer's first argument
     :param lr: the learning rate ``α``
@@ -212,7 +212,7 @@ class TabularPolicy(SFDQNPolicy):
         """
         if vec_normalize_env is not None and vec_normalize_env.norm_obs:
             raise ValueError("TabularPolicy indexes raw integer observations: do not normalise them with VecNormalize")
-        # numba (about 60 MB and 0.4 s) loads with the first tabular update: deep learners never import it
+        # numba (its memory and start-up time) loads with the first tabular update: deep learners never import it
         from sb3_sfgpi.tabular.kernels import DIVERGED, STORE_ROWS, sampled_td_update
 
         flat = replay_buffer.sample_rows(batch_size)

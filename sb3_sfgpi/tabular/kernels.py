@@ -1,12 +1,12 @@
 """The tabular learner's per-step arithmetic, compiled by numba: the same operations in the same order as numpy's.
 
-A tabular TD update on a batch of 32 transitions is a few hundred floating-point operations; in numpy each of its
-steps is a call with its own overhead (about 100 µs in all), compiled it is about a microsecond. Compiled code must not
-change a single number: every product and sum here is one float32 IEEE operation, in the order numpy does them
-(:func:`~sb3_sfgpi.common.weights.weighted_sum`: ``(v_0 w_0 + v_1 w_1) + v_2 w_2 + ...``), with no ``fastmath`` (no
-reassociation, no fused multiply-add; ``tests/test_kernels.py`` checks the machine code), so the table holds the same
-bits as numpy's update would, on every CPU. The compiled code is cached next to this file (or in numba's user cache
-where that is not writable), so a run compiles it once per machine.
+A tabular TD update on a batch of transitions is a few hundred floating-point operations: in numpy each of its steps is
+a call whose overhead outweighs its arithmetic, compiled the whole update is one call (its cost: the docs' performance
+page). Compiled code must not change a single number: every product and sum here is one float32 IEEE operation, in the
+order numpy does them (:func:`~sb3_sfgpi.common.weights.weighted_sum`: ``(v_0 w_0 + v_1 w_1) + v_2 w_2 + ...``), with no
+``fastmath`` (no reassociation, no fused multiply-add; ``tests/test_kernels.py`` checks the machine code), so the table
+holds the same bits as numpy's update would, on every CPU. The compiled code is cached next to this file (or in numba's
+user cache where that is not writable), so a run compiles it once per machine.
 """
 
 from __future__ import annotations
