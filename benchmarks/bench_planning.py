@@ -16,7 +16,8 @@ import numpy as np
 from sfgpi_envs.four_room import FourRoomParallelEnv
 
 from benchmarks._common import Row, fmt_time, interleaved_samples, paired_ratio
-from sb3_sfgpi.tabular.network import TabularSFNetwork, greedy_entries
+from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 from sb3_sfgpi.tabular.planning import TOLERANCE, EmpiricalModel, Experience
 from sb3_sfgpi.tabular.sparse import SparseTable
 
@@ -32,7 +33,8 @@ def whole_table_sweep(model: EmpiricalModel, table: np.ndarray, weights: np.ndar
     scale = (gamma * model.continues * model.probability)[:, None]
     expected_reward = model.reward * model.probability[:, None]
     for sweep in range(1, sweeps + 1):
-        following = table[greedy_entries(table, model.next_first, model.n_actions, weights)]
+        next_psi = table.reshape(-1, model.n_actions, table.shape[1])[model.next_first // model.n_actions]
+        following = table[model.next_first + weighted_sum(next_psi, weights).argmax(axis=1)]
         contributions = expected_reward + scale * following
         columns = [np.bincount(model.pair, contributions[:, i], len(model.entries)) for i in range(table.shape[1])]
         backed_up = np.stack(columns, axis=1)

@@ -28,7 +28,8 @@ from sb3_sfgpi.common.metrics import expected_utility
 from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.ols import OLS
-from sb3_sfgpi.tabular.network import TabularSFNetwork, greedy_entries
+from sb3_sfgpi.tabular.kernels import greedy_action
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 
 PROPERTY_SETTINGS = settings(max_examples=40, deadline=None, database=None)
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,13 +118,13 @@ def test_identical_rows_tie_wherever_they_are(row, other, w, n):
     position=st.integers(0, 63),
 )
 def test_td_target_ties_go_to_the_first_action_at_any_batch_position(rows, w, batch, position):
-    """``greedy_entries`` (the TD target's argmax) takes the first of equal actions whatever the batch size and
+    """``greedy_action`` (the compiled TD target's argmax) takes the first of equal actions whatever the batch size and
     wherever the state sits in the batch."""
     block = np.array(rows, dtype=np.float32)
     block[2] = block[1]  # actions 1 and 2 tie
-    entries = np.tile(block, (batch, 1))
-    first = np.arange(batch) * 4
-    chosen = greedy_entries(entries, first, 4, w.astype(np.float32)) - first
+    states = np.tile(block, (batch, 1, 1))
+    none_forbidden = np.zeros(0, dtype=bool)
+    chosen = np.array([greedy_action(psi, w.astype(np.float32), none_forbidden)[0] for psi in states])
     q = weighted_sum(block, w.astype(np.float32))
     assert np.all(chosen == int(np.flatnonzero(q == q.max())[0]))
     assert chosen[min(position, batch - 1)] == chosen[0]

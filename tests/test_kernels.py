@@ -27,13 +27,14 @@ def numpy_update(policy: TabularPolicy, buffer: MOReplayBuffer, batch_size: int,
     net, target_net, n_actions = policy.sf_net, policy.sf_net_target, policy.sf_net.n_actions
     slots = net.table.store(net.rows(obs, check=False))
     next_rows = net.rows(next_obs, check=False)
-    entries, next_first = net.entries(), net.table.slots(next_rows) * n_actions
+    entries, next_first = net.table.values.reshape(-1, net.reward_dim), net.table.slots(next_rows) * n_actions
     psi = entries.reshape(-1, n_actions, entries.shape[1])[next_first // n_actions]
     next_flat = next_first + masked(weighted_sum(psi, policy.weights.numpy()), next_masks).argmax(axis=1)
     if target_net is net:
         next_psi = entries[next_flat]
     else:
-        next_psi = target_net.entries()[target_net.table.slots(next_rows) * n_actions + next_flat - next_first]
+        target_entries = target_net.table.values.reshape(-1, net.reward_dim)
+        next_psi = target_entries[target_net.table.slots(next_rows) * n_actions + next_flat - next_first]
     target_psi = rewards + ((1 - dones) * gamma)[:, None] * next_psi
     flat = slots * n_actions + actions.astype(np.int64, copy=False)
     td_error = target_psi - entries[flat]

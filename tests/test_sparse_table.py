@@ -12,10 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
 from sb3_sfgpi.tabular import sparse
-from sb3_sfgpi.tabular.network import greedy_entries
 from sb3_sfgpi.tabular.sparse import INITIAL_CAPACITY, SparseTable
 
 #: 13 x 13 cells and 6 flags: 10,816 rows, of which a test visits a few hundred
@@ -61,7 +61,9 @@ def filled_buffer(rng: np.random.Generator, n: int) -> MOReplayBuffer:
 def dense_td_update(table: np.ndarray, batch: tuple, alpha: float, gamma: float, weights: np.ndarray) -> None:
     """The TD update on a dense table (one row per ``(state, action)``), as it was before tables became sparse."""
     rows, actions, next_rows, dones, rewards = batch
-    next_flat = greedy_entries(table, next_rows * N_ACTIONS, N_ACTIONS, weights)
+    next_flat = next_rows * N_ACTIONS + weighted_sum(
+        table.reshape(-1, N_ACTIONS, REWARD_DIM)[next_rows], weights
+    ).argmax(1)
     target = rewards + ((1 - dones) * gamma)[:, None] * table[next_flat]
     flat = rows * N_ACTIONS + actions.astype(np.int64)
     np.add.at(table, flat, alpha * (target - table[flat]))

@@ -189,7 +189,7 @@ def warn_of_swapped_flags(
         f"every agent was truncated after {steps} steps, before the env's time limit ({time_limit}): does it return "
         "terminations and truncations swapped (MOMAland 0.2's item gathering and beach do)? Then wrap it in "
         "sb3_sfgpi.SwapTerminationsTruncations",
-        stacklevel=4,
+        stacklevel=3,  # the runner's learn(), where it stepped
     )
     return True
 

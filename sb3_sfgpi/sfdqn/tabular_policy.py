@@ -216,13 +216,14 @@ class TabularPolicy(SFDQNPolicy):
         from sb3_sfgpi.tabular.kernels import DIVERGED, STORE_ROWS, sampled_td_update
 
         flat = replay_buffer.sample_rows(batch_size)
+        next_flat = replay_buffer.next_rows(flat)
         lr = self.optimizer.param_groups[0]["lr"]
         net, target_net, storage = self.sf_net, self.sf_net_target, replay_buffer.flat_storage()
         rows, td_error = np.empty(batch_size, dtype=np.int64), np.empty((batch_size, self.reward_dim), dtype=np.float32)
         outcome = STORE_ROWS
         while outcome == STORE_ROWS:  # at most twice: the second time every row is stored
             outcome = sampled_td_update(
-                net.table_storage(), target_net.table_storage(), storage, flat, replay_buffer.next_rows(flat),
+                net.table_storage(), target_net.table_storage(), storage, flat, next_flat,
                 *net.row_strides(), self.weights.numpy(), np.float32(gamma), np.float32(lr), rows, td_error,
             )  # fmt: skip
             if outcome == STORE_ROWS:

@@ -10,32 +10,12 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs
 
-from sb3_sfgpi.common.action_masks import masked
-from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.tabular.sparse import SparseTable
 
 #: Largest table :class:`TabularSFNetwork` builds (number of observation values).
 MAX_TABLE_STATES = 50_000_000
 #: What a table's state dict may hold.
 TABLE_KEYS = ("table.rows", "table.values", "table.shape", "table.default")
-
-
-def greedy_entries(
-    entries: np.ndarray, first: np.ndarray, n_actions: int, weights: np.ndarray, masks: np.ndarray | None = None
-) -> np.ndarray:
-    """
-    ``s * n_actions + argmax_a w · ψ(s, a)`` read from a table seen as one row per ``(state, action)``.
-
-    :param entries: ψ, shape ``(n_states * n_actions, d)``
-    :param first: ``s * n_actions`` of each state, shape ``(batch,)``
-    :param n_actions: number of actions
-    :param weights: ``w``, shape ``(d,)``
-    :param masks: where given, True for the actions each state has, shape ``(batch, n_actions)``
-    :return: the row of each state's greedy action (ties, exactly equal
-        :func:`~sb3_sfgpi.common.weights.weighted_sum` values, go to the first), shape ``(batch,)``
-    """
-    psi = entries.reshape(-1, n_actions, entries.shape[1])[first // n_actions]  # one index per state, not per entry
-    return first + masked(weighted_sum(psi, weights), masks).argmax(axis=1)
 
 
 def observation_radices(observation_space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
@@ -98,14 +78,6 @@ class TabularSFNetwork(BasePolicy):
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
         self.table = SparseTable(n_states, self.n_actions * reward_dim)
-
-    def entries(self) -> np.ndarray:
-        """
-        The table's storage as one row of ψ per ``(slot, action)`` (row ``slot * n_actions + a``; slot ``-1``, the
-        default row, is the last ``n_actions`` rows): a view, so updates through it are updates of the table (until
-        the table grows: take it after :meth:`SparseTable.store`).
-        """
-        return self.table.values.reshape(-1, self.reward_dim)
 
     def table_storage(self) -> tuple[np.ndarray, np.ndarray]:
         """
