@@ -1,6 +1,6 @@
-"""The compiled tabular TD update (issue 59) against numpy's: the same table, bit for bit, from the same random draws,
-for every kind of buffer and table; and machine code without fused multiply-adds (a fused ``a · b + c`` rounds once,
-numpy's twice: other bits on other CPUs)."""
+"""The compiled tabular TD update and read (issue 59) against numpy's: the same table and values, bit for bit,
+from the same random draws, for every kind of buffer and table; and machine code without fused multiply-adds (a fused
+``a · b + c`` rounds once, numpy's twice: other bits on other CPUs)."""
 
 from __future__ import annotations
 
@@ -119,11 +119,43 @@ def test_an_update_that_overflows_stores_no_inf_and_says_so():
     assert np.isfinite(policy.sf_net.table.dense()).all()
 
 
-@pytest.mark.parametrize("kernel", ["sampled_td_update", "greedy_action", "table_row"])
+@settings(max_examples=60, deadline=None)
+@given(
+    space=st.sampled_from(OBSERVATION_SPACES),
+    seed=st.integers(0, 2**32 - 1),
+    dtype=st.sampled_from(["int64", "int8", "float32"]),
+)
+def test_the_compiled_read_of_the_table_gives_the_bits_numpy_gives(space, seed, dtype):
+    policy = learner(space, seed, False, 0.1)
+    space.seed(seed)
+    obs = np.stack([space.sample() for _ in range(5)]).astype(dtype)
+    net = policy.sf_net
+    psi = net.table.values.reshape(-1, net.n_actions, net.reward_dim)[net.table.slots(net.rows(obs))]
+    expected = weighted_sum(psi, policy.weights.numpy())
+    values, vectorized = policy.q_values(obs, policy.weights.numpy())
+    assert vectorized
+    np.testing.assert_array_equal(values.view(np.uint32), expected.view(np.uint32))
+
+
+@pytest.mark.parametrize("observation", [[4, 0], [0, 0], [1, 3], [1.5, 0], [np.nan, 0], [1e30, 0], [-0.5, 0], [1, -2]])
+def test_an_observation_outside_the_space_is_refused_by_the_compiled_read(observation):
+    policy = learner(spaces.MultiDiscrete([3, 4], start=[1, -1]), 0, False, 0.1)  # components 1..3 and -1..2
+    with pytest.raises(ValueError, match=r"outside the observation space"):
+        policy.q_values(np.array([[2, 0], observation]), policy.weights.numpy())
+
+
+def test_the_compiled_read_takes_one_weight_vector():
+    policy = learner(OBSERVATION_SPACES[0], 0, False, 0.1)
+    with pytest.raises(ValueError, match=r"weights of shape \(3,\)"):
+        policy.q_values(np.array([0, 1]), np.ones((2, 3)) / 3)
+
+
+@pytest.mark.parametrize("kernel", ["sampled_td_update", "greedy_action", "table_row", "action_values"])
 def test_the_compiled_kernels_have_no_fused_multiply_add(kernel):
     compiled = getattr(kernels, kernel)
     if not compiled.signatures:  # compiled on first use: use it once
         policy, space = learner(OBSERVATION_SPACES[0], 0, False, 0.1), OBSERVATION_SPACES[0]
         policy.td_update(filled_buffer(space, 0, 1, False, False), 32, 0.9, 10.0)
+        policy.q_values(np.array([0, 1]), policy.weights.numpy())
     for assembly in compiled.inspect_asm().values():
         assert "fma" not in assembly.lower()

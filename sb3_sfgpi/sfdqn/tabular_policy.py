@@ -12,7 +12,6 @@ from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 from sb3_sfgpi.tabular.network import TabularSFNetwork
@@ -96,6 +95,7 @@ class TabularPolicy(SFDQNPolicy):
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
         )
+        self._weights_view, self._weights_address = self.weights.numpy(), self.weights.data_ptr()
 
     def _build(self, lr_schedule: Schedule) -> None:
         self.sf_net = self.make_sf_net()
@@ -121,14 +121,22 @@ class TabularPolicy(SFDQNPolicy):
         q_values, vectorized = self.q_values(observation, weights)
         return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
 
+    def weights_array(self) -> np.ndarray:
+        """
+        ``w``: a numpy view of the ``weights`` buffer, made again only where the buffer's memory is another (a copy
+        of the policy); torch's ``numpy()`` costs more than a tabular update's arithmetic.
+        """
+        weights = self.weights
+        if self._weights_address != weights.data_ptr():
+            self._weights_view, self._weights_address = weights.numpy(), weights.data_ptr()
+        return self._weights_view
+
     def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """``w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.q_values`)."""
-        net = self.sf_net
         # SB3's is_vectorized_observation, without its image-transpose step (integer spaces are never images).
         vectorized = is_vectorized_observation(observation, self.observation_space)
         obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
-        psi = net.table.values.reshape(-1, net.n_actions, self.reward_dim)[net.table.slots(net.rows(obs))]
-        return weighted_sum(psi, np.asarray(weights, dtype=np.float32)), vectorized
+        return self.sf_net.action_values(obs, weights), vectorized
 
     def fill(self, value: float) -> None:
         """
@@ -172,7 +180,7 @@ class TabularPolicy(SFDQNPolicy):
         :return: the number of sweeps done
         """
         model = self.experience(replay_buffer).model()
-        sweeps = plan_table(self.sf_net.table, model, self.weights.numpy(), gamma, max_sweeps, untried_value)
+        sweeps = plan_table(self.sf_net.table, model, self.weights_array(), gamma, max_sweeps, untried_value)
         self.update_target()
         return sweeps
 
@@ -224,7 +232,7 @@ class TabularPolicy(SFDQNPolicy):
         while outcome == STORE_ROWS:  # at most twice: the second time every row is stored
             outcome = sampled_td_update(
                 net.table_storage(), target_net.table_storage(), storage, flat, next_flat,
-                *net.row_strides(), self.weights.numpy(), np.float32(gamma), np.float32(lr), rows, td_error,
+                *net.row_strides(), self.weights_array(), np.float32(gamma), np.float32(lr), rows, td_error,
             )  # fmt: skip
             if outcome == STORE_ROWS:
                 net.table.store(rows)

@@ -23,6 +23,56 @@ UPDATED, DIVERGED, STORE_ROWS = 1, 0, -1
 
 
 @njit(cache=True, nogil=True)
+def weighted_value(psi: np.ndarray, weights: np.ndarray) -> np.float32:
+    """``w · ψ`` of one action, as :func:`~sb3_sfgpi.common.weights.weighted_sum` adds it (float32 in, float32 out)."""
+    q = psi[0] * weights[0]
+    if psi.shape[0] > 1:
+        q = q + psi[1] * weights[1]
+        for k in range(2, psi.shape[0]):
+            q = q + psi[k] * weights[k]
+    return q
+
+
+@njit(cache=True, nogil=True)
+def action_values(
+    table: tuple,
+    observations: np.ndarray,
+    low: np.ndarray,
+    end: np.ndarray,
+    strides: np.ndarray,
+    first_row: int,
+    weights: np.ndarray,
+    values: np.ndarray,
+) -> int:
+    """
+    ``w · ψ(s, a)`` of every action of each observation, written into ``values`` (shape ``(batch, n_actions)``,
+    float32): the bits of :func:`~sb3_sfgpi.common.weights.weighted_sum` over the table's rows.
+
+    :param table: the table's storage and slot map (see :func:`sampled_td_update`)
+    :param observations: raw observations, one row of components each (any numeric dtype)
+    :param low: each component's lowest value, with ``end`` one past its highest
+    :param strides: the mixed-radix strides, with ``first_row`` the row of the lowest observation
+    :param weights: ``w``, shape ``(d,)``, float32
+    :return: ``-1``, or the index of the first observation outside the space (not an integer in its bounds: it
+        would read another state's row); the values of the observations before it are written
+    """
+    psi, slot_map = table
+    for i in range(observations.shape[0]):
+        row = 0
+        for j in range(strides.shape[0]):
+            x = observations[i, j]
+            if not (low[j] <= x < end[j]) or np.int64(x) != x:  # bounds first: NaN and huge floats
+                return i
+            row += np.int64(x) * strides[j]
+        slot = slot_map[row - first_row]
+        if slot < 0:
+            slot = psi.shape[0] - 1
+        for a in range(psi.shape[1]):
+            values[i, a] = weighted_value(psi[slot, a], weights)
+    return -1
+
+
+@njit(cache=True, nogil=True)
 def greedy_action(psi: np.ndarray, weights: np.ndarray, forbidden: np.ndarray) -> tuple[int, bool]:
     """
     ``argmax_a w · ψ(a)`` over the actions not forbidden, ties to the first (numpy's ``argmax`` of
@@ -37,11 +87,7 @@ def greedy_action(psi: np.ndarray, weights: np.ndarray, forbidden: np.ndarray) -
     for a in range(psi.shape[0]):
         if forbidden.shape[0] and forbidden[a]:
             continue
-        q = psi[a, 0] * weights[0]
-        if psi.shape[1] > 1:
-            q = q + psi[a, 1] * weights[1]
-            for k in range(2, psi.shape[1]):
-                q = q + psi[a, k] * weights[k]
+        q = weighted_value(psi[a], weights)
         if not np.isfinite(q):
             finite = False
         if q > best:

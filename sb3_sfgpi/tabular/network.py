@@ -74,6 +74,7 @@ class TabularSFNetwork(BasePolicy):
             )
         strides = np.concatenate([np.cumprod(n_values[::-1])[::-1][1:], [1]]).astype(np.int64)
         self._low, self._strides, self._n_values = low.astype(np.int64), strides, n_values.astype(np.uint64)
+        self._end = self._low + n_values.astype(np.int64)  # one past each component's highest value
         self._first_row = int(self._low @ strides)  # the row index of the lowest observation, before it is subtracted
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
@@ -85,6 +86,35 @@ class TabularSFNetwork(BasePolicy):
         and its slot map (views, until the table grows).
         """
         return self.table.values.reshape(-1, self.n_actions, self.reward_dim), self.table.slot_map()
+
+    def action_values(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """
+        ``w · ψ(s, a)`` of every action of raw observations, read by compiled code
+        (:func:`~sb3_sfgpi.tabular.kernels.action_values`: the bits of
+        :func:`~sb3_sfgpi.common.weights.weighted_sum`).
+
+        :param obs: raw observations, shape ``(batch,)`` or ``(batch, n_components)``
+        :param weights: ``w``, shape ``(d,)``
+        :return: shape ``(batch, n_actions)``, float32
+        :raises ValueError: an observation outside the observation space (it would read another state's row), or
+            weights of another shape
+        """
+        from sb3_sfgpi.tabular.kernels import action_values  # numba loads with the first tabular read
+
+        raw = np.asarray(obs)
+        w = np.asarray(weights, dtype=np.float32)
+        if w.shape != (self.reward_dim,):
+            raise ValueError(f"a table's values need weights of shape ({self.reward_dim},), got {w.shape}")
+        observations = raw.reshape(len(raw), self._low.size)
+        values = np.empty((len(raw), self.n_actions), dtype=np.float32)
+        outside = action_values(
+            self.table_storage(), observations, self._low, self._end, self._strides, self._first_row, w, values
+        )
+        if outside >= 0:
+            raise ValueError(
+                f"observation {raw[outside].tolist()} is outside the observation space {self.observation_space}"
+            )
+        return values
 
     def row_strides(self) -> tuple[np.ndarray, int]:
         """The mixed-radix strides of an observation's components and the row of the lowest observation: an
