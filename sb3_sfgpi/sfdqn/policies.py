@@ -15,6 +15,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 from torch.nn import functional as F
 
+from sb3_sfgpi.common.action_masks import checked_masks, masked, sample_allowed
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.sfdqn.networks import SFNetwork, argmax_random_ties, greedy_actions, scalarize
 
@@ -117,26 +118,52 @@ class SFDQNPolicy(BasePolicy):
         """
         return scalarize(self.sf_net(obs), weights)
 
-    def greedy(
-        self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
-    ) -> tuple[np.ndarray, bool]:
+    def greedy(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """
-        ``argmax_a w · ψ(s, a)`` for one observation or a batch.
+        ``argmax_a w · ψ(s, a)`` for one observation or a batch, ties to the first action.
 
         :param observation: raw observation(s), as given to ``predict``
         :param weights: shape ``(d,)``
-        :param random_ties: break ties between actions of equal value at random (the behaviour policy) instead of
-            taking the first (the learned policy)
         :return: the actions (shape ``(batch,)``) and whether the observation was a batch
         """
-        if random_ties:
-            q_values, vectorized = self.q_values(observation, weights)
-            return argmax_random_ties(q_values), vectorized
         self.set_training_mode(False)
         obs_tensor, vectorized = self.obs_to_tensor(observation)
         with th.no_grad():
             weights_tensor = th.as_tensor(weights, dtype=th.float32, device=self.weights.device)
             return self.action_values(obs_tensor, weights_tensor).argmax(dim=1).cpu().numpy(), vectorized
+
+    def masked_actions(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        weights: np.ndarray,
+        action_masks: np.ndarray | None,
+        exploration_rate: float | None,
+    ) -> tuple[np.ndarray, bool]:
+        """
+        Actions among those ``action_masks`` allows: greedy in ``w · ψ(s, ·)`` (ties to the first) where
+        ``exploration_rate`` is None, else ε-greedy with ``ε = exploration_rate``.
+
+        In a batch each row explores with probability ε on its own (SB3's DQN draws once for the whole batch). The
+        greedy choice of the ε-greedy policy breaks ties at random
+        (:func:`~sb3_sfgpi.sfdqn.networks.argmax_random_ties`).
+
+        :param observation: raw observation(s), as given to ``predict``
+        :param action_masks: 0/1 of shape ``(batch, n_actions)``, or None: every action
+        :return: the actions (shape ``(batch,)``) and whether the observation was a batch
+        """
+        vectorized = self.is_vectorized_observation(observation)
+        n_batch = len(observation) if vectorized else 1
+        masks = checked_masks(action_masks, n_batch, int(self.action_space.n))  # type: ignore[attr-defined]
+        if exploration_rate is None:
+            return masked(self.q_values(observation, weights)[0], masks).argmax(axis=1), vectorized  # type: ignore[arg-type]
+        explore = np.random.rand(n_batch) < exploration_rate
+        rows = [None] * n_batch if masks is None else list(masks)
+        if explore.all():
+            return np.array([sample_allowed(self.action_space, rows[i]) for i in range(n_batch)]), vectorized
+        actions = argmax_random_ties(masked(self.q_values(observation, weights)[0], masks))  # type: ignore[arg-type]
+        for i in np.flatnonzero(explore):
+            actions[i] = sample_allowed(self.action_space, rows[i])
+        return actions, vectorized
 
     def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """

@@ -9,22 +9,18 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.utils import LinearSchedule, safe_mean
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_sfgpi.common.action_masks import ACTION_MASK, checked_masks, info_mask, masked, sample_allowed, stacked_masks
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.common.checks import check_finite, env_name
 from sb3_sfgpi.common.device import resolve_device
+from sb3_sfgpi.common.mo_off_policy import MOOffPolicyAlgorithm
 from sb3_sfgpi.common.observations import numeric_array
-from sb3_sfgpi.common.vec_env import make_mo_vec_env, vec_env_reward_dim, wrap_mo_env
+from sb3_sfgpi.common.vec_env import make_mo_vec_env, vec_env_reward_dim
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.run_settings import GAMMA
 from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
-from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.options import (
     check_options,
     check_planning_options,
@@ -39,7 +35,7 @@ from sb3_sfgpi.tabular.planning import SETTLE_SWEEPS
 SelfSFDQN = TypeVar("SelfSFDQN", bound="SFDQN")
 
 
-class SFDQN(OffPolicyAlgorithm):
+class SFDQN(MOOffPolicyAlgorithm):
     """
     Successor-feature DQN: learns ``ψ(s, a) ∈ R^d`` for the policy that is greedy in ``w · ψ``.
 
@@ -200,8 +196,6 @@ class SFDQN(OffPolicyAlgorithm):
         self.optimistic_init = optimistic_init if isinstance(optimistic_init, str) else float(optimistic_init)
         self._plannings = 0  # plannings done: one each time num_timesteps passes a multiple of planning_interval
         self.exploration_rate = 0.0
-        #: the action masks of ``_last_obs`` (``info["action_mask"]``), shape ``(n_envs, n_actions)``; None: all actions
-        self._last_action_masks: np.ndarray | None = None
         if self.env is not None:
             self.reward_dim = vec_env_reward_dim(self.env)
             self._weights = validate_weights(
@@ -209,10 +203,6 @@ class SFDQN(OffPolicyAlgorithm):
             )
         if _init_setup_model:
             self._setup_model()
-
-    @staticmethod
-    def _wrap_env(env: GymEnv, verbose: int = 0, monitor_wrapper: bool = True) -> VecEnv:
-        return wrap_mo_env(env)  # type: ignore[arg-type]
 
     def _setup_model(self) -> None:
         self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "reward_dim": self.reward_dim}
@@ -290,16 +280,7 @@ class SFDQN(OffPolicyAlgorithm):
     ) -> tuple[int, BaseCallback]:
         if reset_num_timesteps:
             self._plannings = 0
-        resets = reset_num_timesteps or self._last_obs is None  # when SB3's _setup_learn resets the env
-        result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
-        if resets:  # the masks of the observations the reset gave
-            self._last_action_masks = self._masks_of(getattr(self.env, "reset_infos", []))
-        return result
-
-    def _masks_of(self, infos: list[dict[str, Any]]) -> np.ndarray | None:
-        """The action masks the envs' infos carry, shape ``(n_envs, n_actions)``, or None where none has one."""
-        n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
-        return stacked_masks([info_mask(info, n_actions, f"env {i}") for i, info in enumerate(infos)], n_actions)
+        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     def _on_step(self) -> None:
         """Update the exploration rate and, every ``target_update_interval`` steps, the target network."""
@@ -362,89 +343,11 @@ class SFDQN(OffPolicyAlgorithm):
         if not isinstance(observation, dict):
             observation = numeric_array(observation)
         if deterministic and action_masks is None:
-            actions, vectorized = self.policy.greedy(observation, weights, random_ties=False)
-            return (actions if vectorized else actions[0]), state
-        vectorized = self.policy.is_vectorized_observation(observation)
-        n_batch = len(observation) if vectorized else 1  # type: ignore[arg-type]
-        masks = checked_masks(action_masks, n_batch, int(self.action_space.n))  # type: ignore[attr-defined]
-        if deterministic:
-            actions = masked(self.policy.q_values(observation, weights)[0], masks).argmax(axis=1)
-            return (actions if vectorized else actions[0]), state
-        explore = np.random.rand(n_batch) < self.exploration_rate  # each env (or agent) on its own
-        rows = [None] * n_batch if masks is None else list(masks)
-        if explore.all():
-            actions = np.array([sample_allowed(self.action_space, rows[i]) for i in range(n_batch)])
+            actions, vectorized = self.policy.greedy(observation, weights)
         else:
-            q_values, _ = self.policy.q_values(observation, weights)
-            actions = argmax_random_ties(masked(q_values, masks))
-            for i in np.flatnonzero(explore):
-                actions[i] = sample_allowed(self.action_space, rows[i])
+            exploration_rate = None if deterministic else self.exploration_rate
+            actions, vectorized = self.policy.masked_actions(observation, weights, action_masks, exploration_rate)
         return (actions if vectorized else actions[0]), state
-
-    def _sample_action(
-        self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """SB3's behaviour action (uniform before ``learning_starts``, then :meth:`predict`), within the last masks."""
-        masks = self._last_action_masks
-        if masks is None:
-            return super()._sample_action(learning_starts, action_noise, n_envs)
-        if self.num_timesteps < learning_starts:
-            actions = np.array([sample_allowed(self.action_space, mask) for mask in masks])
-        else:
-            actions, _ = self.predict(self._last_obs, deterministic=False, action_masks=masks)  # type: ignore[arg-type]
-        return actions, actions
-
-    def _store_transition(
-        self,
-        replay_buffer: ReplayBuffer,
-        buffer_action: np.ndarray,
-        new_obs: np.ndarray | dict[str, np.ndarray],
-        reward: np.ndarray,
-        dones: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> None:
-        """
-        SB3's ``_store_transition`` without its deep copy of the observation on every step.
-
-        The buffer copies what it stores; the next observations need a copy of their own only where a finished
-        episode's terminal observation replaces the first observation of the next one.
-        """
-        self._check_transition(new_obs, reward)
-        self._last_action_masks = self._next_masks(infos, dones)
-        if self._vec_normalize_env is not None or not isinstance(new_obs, np.ndarray):
-            super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
-            return
-        self._last_original_obs = self._last_obs
-        next_obs = new_obs
-        for i, done in enumerate(dones):
-            if done and infos[i].get("terminal_observation") is not None:
-                if next_obs is new_obs:
-                    next_obs = new_obs.copy()
-                next_obs[i] = infos[i]["terminal_observation"]
-        replay_buffer.add(self._last_original_obs, next_obs, buffer_action, reward, dones, infos)  # type: ignore[arg-type]
-        self._last_obs = new_obs  # type: ignore[assignment]
-
-    def _next_masks(self, infos: list[dict[str, Any]], dones: np.ndarray) -> np.ndarray | None:
-        """The masks of the observations the envs go on from: a step's, or the next episode's first where one ended."""
-        if self._last_action_masks is None and not any(ACTION_MASK in info for info in infos):
-            return None  # an env without masks: nothing read
-        reset_infos = getattr(self.env, "reset_infos", [{}] * len(infos))
-        return self._masks_of(
-            [reset_infos[i] if done else info for i, (info, done) in enumerate(zip(infos, dones, strict=True))]
-        )
-
-    def _check_transition(self, new_obs: np.ndarray | dict[str, np.ndarray], reward: np.ndarray) -> None:
-        """Refuse a non-finite reward or observation of a step before it is stored, naming env (agent) and step."""
-        if np.isfinite(reward).all() and all(
-            np.isfinite(part).all() or np.asarray(part).dtype.kind not in "fc"
-            for part in (new_obs.values() if isinstance(new_obs, dict) else (new_obs,))
-        ):
-            return
-        name = env_name(self.env.envs[0]) if hasattr(self.env, "envs") else env_name(self.env)
-        for i in range(len(reward)):
-            row = {key: part[i] for key, part in new_obs.items()} if isinstance(new_obs, dict) else new_obs[i]
-            check_finite(reward[i], "reward", name, f"env {i}", self.num_timesteps)
-            check_finite(row, "observation", name, f"env {i}", self.num_timesteps)
 
     def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
         # MOMonitor reports vector returns; the scalar return SB3 logs is w · return for the current w.
@@ -455,14 +358,6 @@ class SFDQN(OffPolicyAlgorithm):
                 info = {**info, "episode": {**episode, "r": float(np.dot(self._weights, episode["r_vec"]))}}
             scalarized.append(info)
         super()._update_info_buffer(scalarized, dones)
-
-    def dump_logs(self) -> None:
-        assert self.ep_info_buffer is not None
-        vector_returns = [ep_info["r_vec"] for ep_info in self.ep_info_buffer if "r_vec" in ep_info]
-        if vector_returns:
-            for i, value in enumerate(np.mean(vector_returns, axis=0)):
-                self.logger.record(f"rollout/ep_rew_mean_{i}", safe_mean([value]))
-        super().dump_logs()
 
     def learn(
         self: SelfSFDQN,

@@ -12,7 +12,6 @@ from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 from sb3_sfgpi.tabular.network import TabularSFNetwork
 from sb3_sfgpi.tabular.planning import Experience, plan_table
@@ -59,7 +58,7 @@ class TabularPolicy(SFDQNPolicy):
     as in Q-learning.
 
     The table starts at zero, so every action of a state not learned yet ties: the behaviour policy breaks ties at
-    random (``greedy(..., random_ties=True)``), which keeps its greedy steps exploring there; the learned policy
+    random (``masked_actions``), which keeps its greedy steps exploring there; the learned policy
     (TD target, ``predict(deterministic=True)``) takes the first of tied actions.
 
     :param observation_space: a small integer observation space
@@ -114,12 +113,10 @@ class TabularPolicy(SFDQNPolicy):
         """A new zero-initialised SF table."""
         return TabularSFNetwork(self.observation_space, self.action_space, self.reward_dim).to(self.device)  # type: ignore[arg-type]
 
-    def greedy(
-        self, observation: np.ndarray, weights: np.ndarray, random_ties: bool = False
-    ) -> tuple[np.ndarray, bool]:
-        """``argmax_a w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.greedy`)."""
+    def greedy(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+        """``argmax_a w · ψ(s, a)`` read from the table (see :meth:`SFDQNPolicy.greedy`)."""
         q_values, vectorized = self.q_values(observation, weights)
-        return (argmax_random_ties(q_values) if random_ties else q_values.argmax(axis=1)), vectorized
+        return q_values.argmax(axis=1), vectorized
 
     def weights_array(self) -> np.ndarray:
         """
