@@ -238,3 +238,16 @@ def test_a_saved_learner_state_that_does_not_fit_is_refused(three_iterations):
     del state["optimizer"]
     with pytest.raises(ValueError, match="does not fit"):
         restore_training_state(learner, state)
+
+
+def test_a_one_head_file_from_before_two_became_the_default_is_refused_in_one_line_and_loads_when_told(tmp_path):
+    model = SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(net_arch=[8], n_heads=1))
+    model.policy_kwargs = {"net_arch": [8]}  # as saved before n_heads=2 became the default
+    model.save(tmp_path / "one_head.zip")
+    with pytest.raises(ValueError, match="do not fit the policy") as refused:
+        SFDQN.load(tmp_path / "one_head.zip")
+    assert len(str(refused.value).splitlines()) == 1
+    loaded = SFDQN.load(tmp_path / "one_head.zip", custom_objects={"policy_kwargs": {"net_arch": [8], "n_heads": 1}})
+    assert loaded.policy.sf_net.n_heads == 1
+    for mine, theirs in zip(loaded.policy.parameters(), model.policy.parameters(), strict=True):
+        assert th.equal(mine, theirs)

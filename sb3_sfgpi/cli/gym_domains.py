@@ -44,9 +44,9 @@ TABULAR_LEARNER = {
 #: (:mod:`sb3_sfgpi.tabular.pooling`; measured on the known-front problems: docs, experiments/known_fronts).
 TABULAR_POOL_REPLAY = True
 #: Deep learners (observations a table cannot hold): one network ψ(s, a, w) per agent for the whole run, trained over
-#: OLS's weights and acting by GPI over them (``ConditionedMlpPolicy``), with GPI-LS's minecart settings (γ 0.98,
-#: 4 × 256, replay 200,000, target network every 200 steps, ε from 1 to 0.05 over the first 50,000 steps); measured
-#: against one new MLP per iteration on minecart: docs, experiments/known_fronts.
+#: OLS's weights and acting by GPI over them (``ConditionedMlpPolicy``, two heads), with GPI-LS's minecart settings
+#: (γ 0.98, 4 × 256, replay 200,000, target network every 200 steps, ε from 1 to 0.05 over the first 50,000 steps);
+#: measured against one head and against one new MLP per iteration on minecart: docs, experiments/known_fronts.
 MLP_LEARNER = {
     "policy": "ConditionedMlpPolicy",
     "learning_rate": 3e-4,

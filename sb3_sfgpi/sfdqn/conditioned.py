@@ -31,6 +31,9 @@ from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 
 #: The hidden layers of a conditioned network unless told otherwise (GPI-LS's on minecart).
 CONDITIONED_NET_ARCH = [256, 256, 256, 256]
+#: The heads of a conditioned network unless told otherwise: two, whose lower estimate is bootstrapped (GPI-LS's
+#: pessimism; measured against one head on minecart: docs, experiments/levers).
+CONDITIONED_HEADS = 2
 
 
 class ConditionedHead(nn.Module):
@@ -74,12 +77,12 @@ class ConditionedSFNetwork(SFNetwork):
     Its constructor's arguments are :class:`~sb3_sfgpi.sfdqn.networks.SFNetwork`'s (``net_arch``: at least one
     layer, :data:`CONDITIONED_NET_ARCH` by default) and ``n_heads``.
 
-    :param n_heads: Number of heads (at least one)
+    :param n_heads: Number of heads (at least one; :data:`CONDITIONED_HEADS` by default)
     """
 
     default_net_arch = tuple(CONDITIONED_NET_ARCH)
 
-    def __init__(self, *args: Any, n_heads: int = 1, **kwargs: Any):
+    def __init__(self, *args: Any, n_heads: int = CONDITIONED_HEADS, **kwargs: Any):
         if n_heads < 1:
             raise ValueError(f"a conditioned SF network needs at least one head, got n_heads={n_heads}")
         self.n_heads = n_heads
@@ -154,7 +157,7 @@ class ConditionedPolicy(SFDQNPolicy):
     :param lr_schedule: Learning rate schedule
     :param reward_dim: Number of objectives ``d``
     :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
-    :param n_heads: Number of heads of the network
+    :param n_heads: Number of heads of the network (:data:`CONDITIONED_HEADS` by default)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate (default: ``foreach``)
     :param kwargs: further :class:`~sb3_sfgpi.sfdqn.policies.SFDQNPolicy` arguments
     """
@@ -167,7 +170,7 @@ class ConditionedPolicy(SFDQNPolicy):
         self,
         *args: Any,
         net_arch: list[int] | None = None,
-        n_heads: int = 1,
+        n_heads: int = CONDITIONED_HEADS,
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):

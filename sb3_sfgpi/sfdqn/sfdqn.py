@@ -395,12 +395,21 @@ class SFDQN(MOOffPolicyAlgorithm):
         SB3's :meth:`~stable_baselines3.common.base_class.BaseAlgorithm.load` (which unpickles: load only files you
         trust), refusing in one line a file another algorithm saved.
 
-        :raises ValueError: the file is not an SFDQN model (e.g. SB3's DQN: it has no ``reward_dim``)
+        :raises ValueError: the file is not an SFDQN model (e.g. SB3's DQN: it has no ``reward_dim``), or its
+            parameters do not fit the policy it names
         """
         try:
             return super().load(path, env=env, device=device, **kwargs)
         except (AttributeError, KeyError) as error:
             raise ValueError(f"{path} is not an SFDQN model (saved by another algorithm?): {error!r}") from None
+        except RuntimeError as error:
+            if "loading state_dict" not in str(error):
+                raise
+            raise ValueError(
+                f"{path}: its parameters do not fit the policy its policy_kwargs build ({str(error).splitlines()[0]}); "
+                "a ConditionedMlpPolicy saved with one head before two became the default loads with "
+                'custom_objects={"policy_kwargs": {**its policy_kwargs, "n_heads": 1}}'
+            ) from None
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "exploration_schedule"]
