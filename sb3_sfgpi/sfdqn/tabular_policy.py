@@ -94,7 +94,7 @@ class TabularPolicy(SFDQNPolicy):
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
         )
-        self._weights_view, self._weights_address = self.weights.numpy(), self.weights.data_ptr()
+        self._weights_view, self._weights_address = np.empty(0, dtype=np.float32), -1  # made by weights_array()
 
     def _build(self, lr_schedule: Schedule) -> None:
         self.sf_net = self.make_sf_net()

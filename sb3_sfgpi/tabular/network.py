@@ -111,9 +111,7 @@ class TabularSFNetwork(BasePolicy):
             self.table_storage(), observations, self._low, self._end, self._strides, self._first_row, w, values
         )
         if outside >= 0:
-            raise ValueError(
-                f"observation {raw[outside].tolist()} is outside the observation space {self.observation_space}"
-            )
+            raise self._outside(raw[outside])
         return values
 
     def row_strides(self) -> tuple[np.ndarray, int]:
@@ -172,8 +170,13 @@ class TabularSFNetwork(BasePolicy):
         if raw.dtype.kind == "f":
             outside |= (raw != np.floor(raw)).reshape(values.shape)
         if outside.any():
-            first = raw[int(np.argmax(outside.any(axis=1)))].tolist()
-            raise ValueError(f"observation {first} is outside the observation space {self.observation_space}")
+            raise self._outside(raw[int(np.argmax(outside.any(axis=1)))])
+
+    def _outside(self, observation: np.ndarray) -> ValueError:
+        """The error of a raw observation outside the observation space."""
+        return ValueError(
+            f"observation {observation.tolist()} is outside the observation space {self.observation_space}"
+        )
 
     def forward(self, obs: PyTorchObs) -> th.Tensor:
         """
