@@ -23,7 +23,9 @@ from sb3_sfgpi.multiagent import MultiAgentRunner
 
 def _runner(k: int, gradient_steps: int, runners: list[MultiAgentRunner]):
     domain = load_domain("traffic")
-    learner_kwargs = {**domain.learner_kwargs, "gradient_steps": gradient_steps, "device": "cpu"}
+    settings = domain.settings
+    learner_kwargs = {"policy": settings.policy, **settings.learner_kwargs, "gradient_steps": gradient_steps}
+    learner_kwargs["device"] = "cpu"
     env = domain.make_env(**domain.env_kwargs)
     runner = MultiAgentRunner(
         env, default_learner_factory(**learner_kwargs), seed=0, n_envs=k, env_fn=domain.make_env,

@@ -148,7 +148,7 @@ def apriori_specs(args: argparse.Namespace, extra: list[str]) -> list[RunSpec]:
     """The a-priori runs: per seed and test weight, the budget of a whole run at once."""
     preset = load_domain("four-room")
     iterations = args.iterations or preset.iterations
-    budget = iterations * (args.steps_per_iteration or preset.steps_per_iteration)
+    budget = iterations * (args.steps_per_iteration or preset.settings.steps_per_iteration)
     weights = random_weights(3, preset.n_test_weights, rng=0)  # MASFOLS's test weights
     sharing = ["--set", f"sharing={args.sharing}"] if args.sharing else []
     options = (*(item for item in extra if item.startswith("--env")), *sharing, "--iterations", "1")

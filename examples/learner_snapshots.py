@@ -75,7 +75,8 @@ def score(runner: MultiAgentRunner, w: np.ndarray, seed: int, episodes: int, met
 
 def scored_snapshots(args: argparse.Namespace, preset: DomainPreset) -> list[dict[str, Any]]:
     """Train, then score every snapshot on the test and the selection episodes."""
-    learner_kwargs = {**preset.learner_kwargs, **key_values(args.learner, "--learner")}
+    learner_kwargs = {"policy": preset.settings.policy, **preset.settings.learner_kwargs}
+    learner_kwargs.update(key_values(args.learner, "--learner"))
     env = preset.build_env({**preset.env_kwargs, **key_values(args.env, "--env")})
     try:
         w = validate_weights(args.w, int(env.reward_space(env.possible_agents[0]).shape[0]), "--w")

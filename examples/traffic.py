@@ -211,7 +211,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--figures", type=Path, default=Path("docs/figures"), help="folder of the PNGs")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="one MA-SFOLS run per seed (Fig. 7)")
     parser.add_argument("--iterations", type=int, default=domain.iterations, help="MA-SFOLS iterations")
-    parser.add_argument("--steps-per-iteration", type=int, default=domain.steps_per_iteration)
+    parser.add_argument("--steps-per-iteration", type=int, default=domain.settings.steps_per_iteration)
     parser.add_argument(
         "--fixed-weights", type=float, nargs=2, action="append", help="weights of the scalarised learners (repeat)"
     )

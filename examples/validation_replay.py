@@ -169,11 +169,11 @@ def load(args: argparse.Namespace) -> tuple[Candidates, bool, bool]:
         raise ValueError(f"{args.run_dir} pooled its replay: the SFs saved are its last iteration's, not those "
                          "validation would have scored")  # fmt: skip
     preset = load_domain(config["domain"])
-    n_weights = preset.validation_weights if args.validation_weights is None else args.validation_weights
+    n_weights = preset.settings.validation_weights if args.validation_weights is None else args.validation_weights
     if n_weights < 1:
         raise ValueError(f"validation needs validation weights: --validation-weights N with N > 0, got {n_weights}")
-    together = preset.admit_together if args.admit_together is None else args.admit_together
-    pruning = preset.prune if args.prune is None else args.prune
+    together = preset.settings.admit_together if args.admit_together is None else args.admit_together
+    pruning = preset.settings.prune if args.prune is None else args.prune
     env = preset.build_env(config["env_kwargs"])
     try:
         return Candidates(run_dir, config, env, Admission(n_weights)), together, pruning

@@ -17,6 +17,7 @@ from sb3_sfgpi.cli.presets import DomainPreset
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights, same_weight
 from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.run_settings import RunSettings
 
 TRAIN = ["train", "four-room", "--iterations", "2", "--steps-per-iteration", "150", "--no-progress", "--seed", "1"]
 
@@ -38,9 +39,9 @@ def test_train_writes_a_run_directory(run_dir):
     assert (run_dir / "policy_set" / "manifest.json").exists()
     assert any((run_dir / "tensorboard").iterdir()) and (run_dir / "logs" / "progress.csv").exists()
     preset = DomainPreset.from_dict("four-room", four_room())
-    assert config["validation_weights"] == 4 and config["prune"] is preset.prune  # --set over the preset's
+    assert config["validation_weights"] == 4 and config["prune"] is preset.settings.prune  # --set over the preset's
     for key in ("gpi_set", "value_episodes", "eval_episodes", "ols_batch", "value_mode", "admit_together"):
-        assert config[key] == getattr(preset, key), key
+        assert config[key] == getattr(preset.settings, key), key
     for removed in ("transfer", "gpi_behaviour", "replan"):
         assert removed not in config
 
@@ -218,9 +219,39 @@ def test_compare_evaluates_a_fixed_run_of_one_shared_learner_by_its_policies(run
     assert row["label"] == "scalarized w=[0.2,0.3,0.5]"
 
 
-def test_a_preset_with_an_unknown_sharing_is_refused():
-    with pytest.raises(UsageError, match="sharing must be one of .*'independent', 'shared'.*, got 'experience'"):
-        DomainPreset.from_dict("four-room", {**four_room(), "sharing": "experience"})
+def test_a_preset_is_a_domain_around_run_settings():
+    data = four_room()
+    settings = DomainPreset.from_dict("four-room", data).settings
+    assert isinstance(settings, RunSettings) and settings.policy == data["learner_kwargs"]["policy"] == "TabularPolicy"
+    assert settings.learner_kwargs == {key: v for key, v in data["learner_kwargs"].items() if key != "policy"}
+    assert (settings.ols_batch, settings.validation_weights) == ("same-after-extrema", 100)
+    assert settings.steps_per_iteration == 50_000 != RunSettings.steps_per_iteration
+    lean = {key: value for key, value in data.items() if key != "steps_per_iteration"}
+    assert DomainPreset.from_dict("four-room", lean).settings.steps_per_iteration == RunSettings.steps_per_iteration
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"sharing": "experience"}, "sharing must be one of independent, shared, got 'experience'"),
+        ({"transfer": True}, "unknown preset key 'transfer'"),
+        ({"seed": 3}, "unknown preset key 'seed'"),  # each run's own
+        ({"learner_kwargs": {"gamma": 0.9}}, "learner_kwargs must be a dict with the learners' 'policy'"),
+        ({"steps_per_iteration": 0}, "steps_per_iteration must be a positive integer, got 0"),
+        ({"value_episodes": True}, "value_episodes must be an integer in"),
+        ({"n_test_weights": 0}, "n_test_weights must be an integer in"),
+    ],
+)
+def test_a_preset_with_a_wrong_key_or_value_is_refused_in_one_line(change, message):
+    with pytest.raises(UsageError, match=f"domain 'four-room': {message}"):
+        DomainPreset.from_dict("four-room", {**four_room(), **change})
+
+
+def test_a_preset_without_a_required_key_is_refused():
+    for key in ("make_env", "learner_kwargs", "iterations"):
+        data = {name: value for name, value in four_room().items() if name != key}
+        with pytest.raises(UsageError, match=f"domain 'four-room': the preset lacks '{key}'"):
+            DomainPreset.from_dict("four-room", data)
 
 
 def test_plot_mean_over_seeds_forward_fills_runs_that_ended_early():
@@ -232,7 +263,7 @@ def test_plot_mean_over_seeds_forward_fills_runs_that_ended_early():
 
 @pytest.mark.parametrize("key", ["prune", "admit_together"])
 def test_a_preset_with_a_validation_rule_that_is_not_a_bool_is_refused(key):
-    assert DomainPreset.from_dict("four-room", four_room()).validation_weights > 0
+    assert DomainPreset.from_dict("four-room", four_room()).settings.validation_weights > 0
     with pytest.raises(UsageError, match=f"{key} must be true or false, got 'yes'"):
         DomainPreset.from_dict("four-room", {**four_room(), key: "yes"})
 

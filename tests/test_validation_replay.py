@@ -70,8 +70,8 @@ def test_the_replay_takes_the_domains_rules_by_default(example, runs):
     options = argparse.Namespace(run_dir=str(kept), validation_weights=None, admit_together=None, prune=None)
     candidates, together, pruning = example.load(options)
     preset = load_domain("four-room")
-    assert (together, pruning) == (preset.admit_together, preset.prune) == (True, True)
-    assert len(candidates.validation_weights) == preset.validation_weights + 3  # and the extrema
+    assert (together, pruning) == (preset.settings.admit_together, preset.settings.prune) == (True, True)
+    assert len(candidates.validation_weights) == preset.settings.validation_weights + 3  # and the extrema
     candidates.env.close()
 
 

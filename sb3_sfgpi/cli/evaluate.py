@@ -11,8 +11,7 @@ import numpy as np
 
 from sb3_sfgpi.cli.compare import episode_metrics
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.cli.presets import CLI_SETTINGS, WEIGHT_HELP, DomainPreset, load_domain
-from sb3_sfgpi.cli.settings import MAX_COUNT
+from sb3_sfgpi.cli.presets import CLI_SETTINGS, MAX_COUNT, WEIGHT_HELP, DomainPreset, load_domain
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights, validate_weights
 from sb3_sfgpi.run_directory import RunDirectory

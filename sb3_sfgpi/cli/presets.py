@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import inspect
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import MISSING, Field, dataclass, field, fields
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, RunSettings
+from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, VALUE_MODES, RunSettings
 from sb3_sfgpi.trust import refuse_unlisted
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
@@ -28,34 +28,54 @@ WEIGHT_HELP = (
 CLI_SETTINGS = ("domain", "env_kwargs", "learner_kwargs")
 
 
+#: The largest count a setting takes (weights, episodes, copies): beyond, a run would not fit in memory or time.
+MAX_COUNT = 1_000_000
+
+
+def _count(minimum: int) -> Callable[[Any], bool]:
+    return lambda value: isinstance(value, int) and not isinstance(value, bool) and minimum <= value <= MAX_COUNT
+
+
+def _one_of(choices: Sequence[str]) -> Callable[[Any], bool]:
+    return lambda value: value in choices
+
+
+#: The settings a preset chooses and ``train --set`` changes: key -> (check, what the value must be).
+SETTABLE: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "ols_batch": (_one_of(OLS_BATCHES), f"one of {', '.join(OLS_BATCHES)}"),
+    "value_mode": (_one_of(VALUE_MODES), f"one of {', '.join(VALUE_MODES)}"),
+    "gpi_set": (_one_of(("all", "ccs")), "all or ccs"),
+    "sharing": (_one_of(SHARINGS), f"one of {', '.join(SHARINGS)}"),
+    "validation_weights": (_count(0), f"an integer in [0, {MAX_COUNT}]"),
+    "prune": (lambda value: isinstance(value, bool), "true or false"),
+    "admit_together": (lambda value: isinstance(value, bool), "true or false"),
+    "pool_replay": (lambda value: isinstance(value, bool), "true or false"),
+    "n_test_weights": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
+    "value_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
+    "eval_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
+    "eval_workers": (_count(0), f"an integer in [0, {MAX_COUNT}]"),
+    "n_envs": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
+}
+#: The run settings (:class:`~sb3_sfgpi.run_settings.RunSettings`) a domain's data may set: all but those each run
+#: chooses (its seed, its weights' algorithm and test weights) and the policy, which is ``learner_kwargs``' entry.
+PRESET_SETTINGS = tuple(
+    name for name in RunSettings.names() if name not in ("policy", "weights", "test_weights", "seed")
+)
+
+
 @dataclass(frozen=True)
 class DomainPreset:
     """
-    What ``sb3-sfgpi`` needs to know of a domain.
+    What ``sb3-sfgpi`` needs to know of a domain. Its data (the entry point's dict) holds the fields below and the
+    run settings of :data:`PRESET_SETTINGS` (``learner_kwargs`` with the learners' ``policy``; the others default
+    to :class:`~sb3_sfgpi.run_settings.RunSettings`'), which :meth:`from_dict` gathers in ``settings``.
 
     :param name: the domain's name
     :param make_env: a picklable callable building the PettingZoo ParallelEnv from ``env_kwargs``
     :param env_kwargs: the env's keyword arguments
-    :param learner_kwargs: SFDQN arguments of the learners, ``policy`` included
-    :param steps_per_iteration: default joint steps per iteration
+    :param settings: the run settings of the domain's runs (seed, weights and test weights: the run's own)
     :param iterations: default maximum number of iterations
     :param n_test_weights: default number of Dirichlet(1) test weights of the GPI evaluation
-    :param value_episodes: episodes of each value estimate
-    :param eval_episodes: episodes per test weight of the GPI evaluation
-    :param value_mode: ``"joint"`` or ``"shared"`` (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`)
-    :param gpi_set: ``"all"`` or ``"ccs"``
-    :param ols_batch: how an MA-SFOLS iteration takes its agents' weights from the OLS queue, ``"top"`` or
-        ``"same-after-extrema"`` (see :class:`~sb3_sfgpi.schedules.OLSSchedule`)
-    :param validation_weights: Dirichlet(1) validation weights deciding which new policies join Π (0: all join; see
-        :class:`~sb3_sfgpi.admission.Admission`)
-    :param prune: also retire, after every iteration, the policies without which GPI does better on the validation
-        weights (with ``validation_weights > 0``)
-    :param admit_together: also try an iteration's policies left out by validation together (with
-        ``validation_weights > 0``)
-    :param pool_replay: plan every policy's SF table on the transitions of every iteration, pooled (single-agent
-        tabular domains; see :mod:`sb3_sfgpi.tabular.pooling`)
-    :param sharing: ``"independent"`` (one learner per agent) or ``"shared"`` (one learner that every agent acts
-        with and feeds; see :class:`~sb3_sfgpi.multiagent.MultiAgentRunner`)
     :param eval_workers: default number of evaluation processes
     :param objectives: the objectives' names, one per reward component
     :param baselines: for ``compare``: name -> env keyword arguments of a controller that needs no actions
@@ -71,20 +91,9 @@ class DomainPreset:
     name: str
     make_env: Callable[..., Any]
     env_kwargs: dict[str, Any]
-    learner_kwargs: dict[str, Any]
-    steps_per_iteration: int
+    settings: RunSettings
     iterations: int
     n_test_weights: int
-    value_episodes: int
-    eval_episodes: int
-    value_mode: str = RunSettings.value_mode
-    gpi_set: str = RunSettings.gpi_set
-    ols_batch: str = RunSettings.ols_batch
-    validation_weights: int = RunSettings.validation_weights
-    prune: bool = RunSettings.prune
-    admit_together: bool = RunSettings.admit_together
-    pool_replay: bool = RunSettings.pool_replay
-    sharing: str = RunSettings.sharing
     eval_workers: int = 0
     objectives: list[str] | None = None
     baselines: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -103,16 +112,28 @@ class DomainPreset:
         """
         if not isinstance(data, dict):
             raise UsageError(f"domain {name!r}: the preset must be a dict, got {type(data).__name__}")
-        known = {f.name: f for f in fields(cls) if f.name != "name"}
+        domain_fields = {f.name: f for f in fields(cls) if f.name not in ("name", "settings")}
         for key in data:
-            if key not in known:
+            if key not in domain_fields and key not in PRESET_SETTINGS:
+                known = [*domain_fields, *PRESET_SETTINGS]
                 raise UsageError(f"domain {name!r}: unknown preset key {key!r} (known: {', '.join(known)})")
-        missing = [key for key, spec in known.items() if _required(spec) and key not in data]
+        required = [key for key, spec in domain_fields.items() if _required(spec)] + ["learner_kwargs"]
+        missing = [key for key in required if key not in data]
         if missing:
             raise UsageError(f"domain {name!r}: the preset lacks {missing[0]!r}")
-        preset = cls(name=name, **data)
+        learner_kwargs = data["learner_kwargs"]
+        if not isinstance(learner_kwargs, dict) or "policy" not in learner_kwargs:
+            raise UsageError(f"domain {name!r}: learner_kwargs must be a dict with the learners' 'policy'")
+        settings = {key: value for key, value in data.items() if key in PRESET_SETTINGS}
+        settings["learner_kwargs"] = {key: value for key, value in learner_kwargs.items() if key != "policy"}
+        domain = {key: value for key, value in data.items() if key in domain_fields}
+        preset = cls(name=name, settings=RunSettings(policy=learner_kwargs["policy"], **settings), **domain)
         preset._check()
         return preset
+
+    def setting(self, key: str) -> Any:
+        """The value of a :data:`SETTABLE` key: one of the run settings, or the preset's own default."""
+        return getattr(self.settings, key) if key in RunSettings.names() else getattr(self, key)
 
     def build_env(self, env_kwargs: dict[str, Any]) -> Any:
         """
@@ -173,22 +194,15 @@ class DomainPreset:
     def _check(self) -> None:
         if not callable(self.make_env):
             raise UsageError(f"domain {self.name!r}: make_env must be callable")
-        for key in ("env_kwargs", "learner_kwargs", "baselines"):
+        for key in ("env_kwargs", "baselines"):
             if not isinstance(getattr(self, key), dict):
                 raise UsageError(f"domain {self.name!r}: {key} must be a dict")
-        for key in ("steps_per_iteration", "iterations", "n_test_weights", "value_episodes", "eval_episodes"):
-            value = getattr(self, key)
+        for key, value in (("steps_per_iteration", self.settings.steps_per_iteration), ("iterations", self.iterations)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise UsageError(f"domain {self.name!r}: {key} must be a positive integer, got {value!r}")
-        if "policy" not in self.learner_kwargs:
-            raise UsageError(f"domain {self.name!r}: learner_kwargs lacks 'policy'")
-        if self.ols_batch not in OLS_BATCHES:
-            raise UsageError(f"domain {self.name!r}: ols_batch must be one of {OLS_BATCHES}, got {self.ols_batch!r}")
-        if self.sharing not in SHARINGS:
-            raise UsageError(f"domain {self.name!r}: sharing must be one of {SHARINGS}, got {self.sharing!r}")
-        for key in ("prune", "admit_together", "pool_replay"):
-            if not isinstance(getattr(self, key), bool):
-                raise UsageError(f"domain {self.name!r}: {key} must be true or false, got {getattr(self, key)!r}")
+        for key, (check, what) in SETTABLE.items():
+            if not check(self.setting(key)):
+                raise UsageError(f"domain {self.name!r}: {key} must be {what}, got {self.setting(key)!r}")
 
 
 def _required(spec: Field) -> bool:

@@ -6,42 +6,13 @@ without a command-line option of its own for each.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.cli.presets import DomainPreset
+from sb3_sfgpi.cli.presets import SETTABLE, DomainPreset
 from sb3_sfgpi.cli.values import key_values
-from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, VALUE_MODES, RunSettings
 
-#: The largest count a setting takes (weights, episodes, copies): beyond, a run would not fit in memory or time.
-MAX_COUNT = 1_000_000
-
-
-def _count(minimum: int) -> Callable[[Any], bool]:
-    return lambda value: isinstance(value, int) and not isinstance(value, bool) and minimum <= value <= MAX_COUNT
-
-
-def _one_of(choices: Sequence[str]) -> Callable[[Any], bool]:
-    return lambda value: value in choices
-
-
-#: What ``--set`` can change: key -> (check, what the value must be).
-SETTABLE: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "ols_batch": (_one_of(OLS_BATCHES), f"one of {', '.join(OLS_BATCHES)}"),
-    "value_mode": (_one_of(VALUE_MODES), f"one of {', '.join(VALUE_MODES)}"),
-    "gpi_set": (_one_of(("all", "ccs")), "all or ccs"),
-    "sharing": (_one_of(SHARINGS), f"one of {', '.join(SHARINGS)}"),
-    "validation_weights": (_count(0), f"an integer in [0, {MAX_COUNT}]"),
-    "prune": (lambda value: isinstance(value, bool), "true or false"),
-    "admit_together": (lambda value: isinstance(value, bool), "true or false"),
-    "pool_replay": (lambda value: isinstance(value, bool), "true or false"),
-    "n_test_weights": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
-    "value_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
-    "eval_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
-    "eval_workers": (_count(0), f"an integer in [0, {MAX_COUNT}]"),
-    "n_envs": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
-}
 #: Settings that do not change a run's results: a resumed run may use other values.
 MACHINE_SETTINGS = ("eval_workers",)
 
@@ -62,7 +33,7 @@ def method_settings(preset: DomainPreset, items: Sequence[str], algo: str) -> tu
         check, what = SETTABLE[key]
         if not check(value):
             raise UsageError(f"--set {key} must be {what}, got {value!r}")
-    settings = {key: given.get(key, getattr(preset, key, getattr(RunSettings, key, None))) for key in SETTABLE}
+    settings = {key: given.get(key, preset.setting(key)) for key in SETTABLE}
     if algo != "ma-sfols":
         if "ols_batch" in given:
             raise UsageError(f"--set ols_batch is only for --algo ma-sfols (OLS weights), not --algo {algo}")

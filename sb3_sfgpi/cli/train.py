@@ -152,7 +152,9 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> tuple[dict[st
     :return: the configuration, and the settings given with ``--set``
     """
     iterations = preset.iterations if args.iterations is None else args.iterations
-    steps_per_iteration = preset.steps_per_iteration if args.steps_per_iteration is None else args.steps_per_iteration
+    steps_per_iteration = args.steps_per_iteration
+    if steps_per_iteration is None:
+        steps_per_iteration = preset.settings.steps_per_iteration
     for name, value in (("--iterations", iterations), ("--steps-per-iteration", steps_per_iteration)):
         if value < 1:
             raise UsageError(f"{name} must be positive, got {value}")
@@ -163,7 +165,8 @@ def _run_config(args: argparse.Namespace, preset: DomainPreset) -> tuple[dict[st
     if args.algo == "fixed" and args.w is None:
         raise UsageError("--algo fixed needs the preference weights --w")
     settings, given = method_settings(preset, args.set, args.algo)
-    learner_kwargs = {**preset.learner_kwargs, "device": args.device, **key_values(args.learner, "--learner")}
+    preset_learner = {"policy": preset.settings.policy, **preset.settings.learner_kwargs}
+    learner_kwargs = {**preset_learner, "device": args.device, **key_values(args.learner, "--learner")}
     config = {
         "domain": args.domain,
         "algorithm": args.algo,
