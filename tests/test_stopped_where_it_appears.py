@@ -164,6 +164,7 @@ def test_successor_features_of_a_table_refuse_observations_outside_its_space(mak
         ({"tau": 1.5}, r"tau must be a number in \[0, 1\]"),
         ({"exploration_final_eps": 2}, r"exploration_final_eps must be a number in \[0, 1\]"),
         ({"max_grad_norm": 0}, "max_grad_norm must be a positive number"),
+        ({"exploration_steps": "50k"}, "exploration_steps must be a positive number of steps or None, got '50k'"),
     ],
 )
 def test_sizes_and_intervals_sb3_accepts_silently_are_refused(overrides, message):

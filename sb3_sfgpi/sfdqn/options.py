@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import math
 import numbers
+from collections.abc import Mapping
 from typing import Any
 
 from stable_baselines3.common.buffers import ReplayBuffer
@@ -149,3 +150,23 @@ def check_schedule_options(
     for ok, message, value in problems:
         if not ok:
             raise ValueError(f"{message}, got {value!r}")
+
+
+def check_arguments(arguments: Mapping[str, Any], policy_class: type) -> None:
+    """
+    Refuse SFDQN's out-of-range or unsupported arguments, each named in one line.
+
+    :param arguments: the constructor's arguments by name (the learning rate as a schedule already)
+    :param policy_class: the policy class they are for
+    """
+    a = arguments
+    check_options(a["learning_rate"], a["gamma"], a["batch_size"], a["n_steps"], a["replay_buffer_class"])
+    check_planning_options(a["planning_sweeps"], a["planning_interval"], a["optimistic_init"], policy_class)
+    exploration = (a["exploration_fraction"], a["exploration_initial_eps"], a["exploration_final_eps"])
+    check_schedule_options(
+        a["buffer_size"], a["learning_starts"], a["train_freq"], a["gradient_steps"], a["target_update_interval"],
+        a["tau"], exploration, a["max_grad_norm"],
+    )  # fmt: skip
+    steps = a["exploration_steps"]
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, numbers.Real) or steps < 1):
+        raise ValueError(f"exploration_steps must be a positive number of steps or None, got {steps!r}")

@@ -21,13 +21,7 @@ from sb3_sfgpi.common.vec_env import make_mo_vec_env, vec_env_reward_dim
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.run_settings import GAMMA
 from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
-from sb3_sfgpi.sfdqn.options import (
-    check_options,
-    check_planning_options,
-    check_schedule_options,
-    learning_rate_schedule,
-    optimistic_value,
-)
+from sb3_sfgpi.sfdqn.options import check_arguments, learning_rate_schedule, optimistic_value
 from sb3_sfgpi.sfdqn.policies import MlpPolicy, SFDQNPolicy
 from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
 from sb3_sfgpi.tabular.planning import SETTLE_SWEEPS
@@ -140,51 +134,20 @@ class SFDQN(MOOffPolicyAlgorithm):
     ) -> None:
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
         learning_rate = learning_rate_schedule(learning_rate)
-        check_options(learning_rate, gamma, batch_size, n_steps, replay_buffer_class)
-        check_planning_options(planning_sweeps, planning_interval, optimistic_init, policy_class)
-        exploration = (exploration_fraction, exploration_initial_eps, exploration_final_eps)
-        check_schedule_options(
-            buffer_size,
-            learning_starts,
-            train_freq,
-            gradient_steps,
-            target_update_interval,
-            tau,
-            exploration,
-            max_grad_norm,
-        )
+        check_arguments(locals(), policy_class)
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
+        env = make_mo_vec_env(env) if isinstance(env, str) else env  # SB3's gym.make would wrap a scalar Monitor
         super().__init__(
-            policy,
-            make_mo_vec_env(env) if isinstance(env, str) else env,  # SB3's gym.make would wrap a scalar Monitor
-            learning_rate,
-            buffer_size,
-            learning_starts,
-            batch_size,
-            tau,
-            gamma,
-            train_freq,
-            gradient_steps,
-            action_noise=None,
-            replay_buffer_class=replay_buffer_class or MOReplayBuffer,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            optimize_memory_usage=optimize_memory_usage,
-            n_steps=1,
-            policy_kwargs=policy_kwargs,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            verbose=verbose,
-            device=device,
-            seed=seed,
-            sde_support=False,
-            supported_action_spaces=(spaces.Discrete,),
+            policy, env, learning_rate, buffer_size, learning_starts, batch_size, tau, gamma, train_freq,
+            gradient_steps, action_noise=None, replay_buffer_class=replay_buffer_class or MOReplayBuffer,
+            replay_buffer_kwargs=replay_buffer_kwargs, optimize_memory_usage=optimize_memory_usage, n_steps=1,
+            policy_kwargs=policy_kwargs, stats_window_size=stats_window_size, tensorboard_log=tensorboard_log,
+            verbose=verbose, device=device, seed=seed, sde_support=False, supported_action_spaces=(spaces.Discrete,),
             support_multi_env=True,
-        )
+        )  # fmt: skip
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
         self.exploration_fraction = exploration_fraction
-        if exploration_steps is not None and (isinstance(exploration_steps, bool) or exploration_steps < 1):
-            raise ValueError(f"exploration_steps must be a positive number of steps or None, got {exploration_steps!r}")
         self.exploration_steps = exploration_steps
         #: the weights a ConditionedMlpPolicy trains beside its own and acts over by GPI, shape ``(k, d)`` (None: none)
         self.weight_support: np.ndarray | None = None
