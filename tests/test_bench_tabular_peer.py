@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
 
 pytest.importorskip("mo_gymnasium")
 if str(Path(__file__).resolve().parents[1]) not in sys.path:  # the benchmarks are not installed
@@ -18,13 +19,13 @@ from benchmarks import bench_tabular_peer as bench  # noqa: E402
 @pytest.mark.parametrize("updates", list(bench.PAIRS))
 def test_our_side_updates_a_batch_of_that_many_transitions_per_step(updates, monkeypatch):
     batches = []
-    sample = MOReplayBuffer.sample_rows
+    sample = TabularPolicy.minibatch_rows
 
     def counted(buffer: MOReplayBuffer, batch_size: int):  # noqa: ANN202
         batches.append(batch_size)
         return sample(buffer, batch_size)
 
-    monkeypatch.setattr(MOReplayBuffer, "sample_rows", counted)
+    monkeypatch.setattr(TabularPolicy, "minibatch_rows", staticmethod(counted))
     bench._sfdqn(bench.PAIRS[updates][0])(50)
     assert batches == [updates] * 50  # one batch per step from the first (learning_starts 0, train_freq 1)
 

@@ -159,3 +159,36 @@ def test_the_compiled_kernels_have_no_fused_multiply_add(kernel):
         policy.q_values(np.array([0, 1]), policy.weights.numpy())
     for assembly in compiled.inspect_asm().values():
         assert "fma" not in assembly.lower()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n_envs=st.integers(1, 3),
+    optimize_memory_usage=st.booleans(),
+    n_steps=st.integers(1, 45),
+    batch_size=st.integers(1, 70),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_compiled_minibatch_rows_are_the_buffers_draws(n_envs, optimize_memory_usage, n_steps, batch_size, seed):
+    """The compiled sampler draws the rows numpy's ``sample_rows`` draws and leaves numpy's generator as it does, for
+    buffers of one or several envs, with one shared observation array or two, before and after they wrap around."""
+    buffer = MOReplayBuffer(
+        20, spaces.Discrete(5), spaces.Discrete(2), "cpu", n_envs, optimize_memory_usage, reward_dim=2
+    )
+    rng = np.random.default_rng(seed)
+    for _ in range(n_steps):
+        buffer.add(*rng.integers(0, 5, (2, n_envs, 1)), rng.integers(0, 2, n_envs), rng.random((n_envs, 2)),
+                   rng.random(n_envs) < 0.2, [{}] * n_envs)  # fmt: skip
+    if buffer.valid_positions()[1] <= buffer.valid_positions()[0]:
+        return  # nothing to sample yet (one shared array keeps its newest transition out)
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    flat = buffer.sample_rows(batch_size)
+    expected, after = (flat, buffer.next_rows(flat)), np.random.get_state()
+    np.random.seed(seed)
+    rows = TabularPolicy.minibatch_rows(buffer, batch_size)
+    state = np.random.get_state()
+    np.random.set_state(saved)
+    np.testing.assert_array_equal(rows[0], expected[0])
+    np.testing.assert_array_equal(rows[1], expected[1])
+    assert state[2] == after[2] and np.array_equal(state[1], after[1])

@@ -229,13 +229,13 @@ class MOReplayBuffer(ReplayBuffer):
         :return: observations, actions ``(N,)``, next observations, dones ``(N,)`` (truncations count as not done),
             rewards ``(N, d)``
         """
-        start, stop, shift = self._valid_positions()
+        start, stop, shift = self.valid_positions()
         indices = (np.arange(start, stop) + shift) % self.buffer_size
         flat = (indices[:, None] * self.n_envs + np.arange(self.n_envs)).reshape(-1)
         obs, actions, next_obs, dones, rewards, _ = self._gather(flat)
         return obs, actions.reshape(-1), next_obs, dones, rewards
 
-    def _valid_positions(self) -> tuple[int, int, int]:
+    def valid_positions(self) -> tuple[int, int, int]:
         """The stored transitions are at ``(i + shift) % buffer_size`` for ``start <= i < stop``."""
         if not self.optimize_memory_usage:
             return 0, self.buffer_size if self.full else self.pos, 0
@@ -243,7 +243,7 @@ class MOReplayBuffer(ReplayBuffer):
         return (1, self.buffer_size, self.pos) if self.full else (0, self.pos, 0)
 
     def _sample_indices(self, batch_size: int) -> np.ndarray:
-        start, stop, shift = self._valid_positions()
+        start, stop, shift = self.valid_positions()
         indices = np.random.randint(start, stop, size=batch_size)
         return (indices + shift) % self.buffer_size if shift else indices  # without a shift, all in [0, buffer_size)
 

@@ -220,8 +220,7 @@ class TabularPolicy(SFDQNPolicy):
         # numba (its memory and start-up time) loads with the first tabular update: deep learners never import it
         from sb3_sfgpi.tabular.kernels import DIVERGED, STORE_ROWS, sampled_td_update
 
-        flat = replay_buffer.sample_rows(batch_size)
-        next_flat = replay_buffer.next_rows(flat)
+        flat, next_flat = self.minibatch_rows(replay_buffer, batch_size)
         lr = self.optimizer.param_groups[0]["lr"]
         net, target_net, storage = self.sf_net, self.sf_net_target, replay_buffer.flat_storage()
         rows, td_error = np.empty(batch_size, dtype=np.int64), np.empty((batch_size, self.reward_dim), dtype=np.float32)
@@ -240,6 +239,27 @@ class TabularPolicy(SFDQNPolicy):
                 return float(0.5 * np.square(td_error).sum())
             except FloatingPointError:
                 raise _diverged(lr, batch_size) from None
+
+    @staticmethod
+    def minibatch_rows(replay_buffer: MOReplayBuffer, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
+        """
+        The flat rows of a minibatch and of its next observations, drawn as
+        :meth:`MOReplayBuffer.sample_rows <sb3_sfgpi.common.buffers.MOReplayBuffer.sample_rows>` draws them: by
+        compiled code from numpy's global generator where it can read it
+        (:func:`~sb3_sfgpi.tabular.kernels.sample_rows`), by numpy otherwise; the same numbers either way.
+        """
+        from sb3_sfgpi.tabular.kernels import sample_rows
+        from sb3_sfgpi.tabular.numpy_random import global_stream
+
+        stream, positions = global_stream(), replay_buffer.valid_positions()
+        if stream is None or positions[1] <= positions[0]:  # numpy's draws (an empty buffer: numpy's error)
+            flat = replay_buffer.sample_rows(batch_size)
+            return flat, replay_buffer.next_rows(flat)
+        flat, next_flat = np.empty(batch_size, dtype=np.int64), np.empty(batch_size, dtype=np.int64)
+        n_envs = replay_buffer.n_envs
+        next_offset = n_envs if replay_buffer.optimize_memory_usage else 0
+        sample_rows(*stream, positions, replay_buffer.buffer_size, n_envs, next_offset, flat, next_flat)
+        return flat, next_flat
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return dict(

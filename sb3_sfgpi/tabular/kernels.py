@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sb3_sfgpi.tabular.numpy_random import random_integers
+
 _ONE = np.float32(1.0)
 
 
@@ -102,6 +104,43 @@ def table_row(observations: np.ndarray, flat: int, strides: np.ndarray, first_ro
     for j in range(strides.shape[0]):
         row += np.int64(observations[flat, j]) * strides[j]
     return row - first_row
+
+
+@njit(cache=True, nogil=True)
+def sample_rows(
+    key: np.ndarray,
+    position: np.ndarray,
+    positions: tuple[int, int, int],
+    capacity: int,
+    n_envs: int,
+    next_offset: int,
+    flat: np.ndarray,
+    next_flat: np.ndarray,
+) -> None:
+    """
+    The flat rows ``transition * n_envs + env`` of a minibatch of a replay buffer, drawn from numpy's global
+    generator (``key``, ``position``: :func:`~sb3_sfgpi.tabular.numpy_random.global_stream`) as
+    :meth:`MOReplayBuffer.sample_rows <sb3_sfgpi.common.buffers.MOReplayBuffer.sample_rows>` draws them: the same
+    numbers, the same state left.
+
+    :param positions: the buffer's ``valid_positions()``: transitions ``(i + shift) % capacity``, ``start <= i < stop``
+    :param capacity: transitions per env the buffer holds
+    :param next_offset: how many rows further the next observation is stored (``n_envs`` where observations and next
+        observations share one array, else 0)
+    :param flat: written: the rows
+    :param next_flat: written: the rows of their next observations
+    """
+    start, stop, shift = positions
+    random_integers(key, position, start, stop, flat)
+    if shift:
+        for i in range(flat.shape[0]):
+            flat[i] = (flat[i] + shift) % capacity
+    if n_envs > 1:
+        random_integers(key, position, 0, n_envs, next_flat)  # the envs, before next_flat is written
+        for i in range(flat.shape[0]):
+            flat[i] = flat[i] * n_envs + next_flat[i]
+    for i in range(flat.shape[0]):
+        next_flat[i] = (flat[i] + next_offset) % (capacity * n_envs)
 
 
 @njit(cache=True, nogil=True)
