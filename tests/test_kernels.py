@@ -4,6 +4,8 @@ from the same random draws, for every kind of buffer and table; and machine code
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import torch as th
@@ -14,6 +16,7 @@ from hypothesis import strategies as st
 from sb3_sfgpi.common.action_masks import masked
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
 from sb3_sfgpi.tabular import kernels
 
@@ -150,13 +153,16 @@ def test_the_compiled_read_takes_one_weight_vector():
         policy.q_values(np.array([0, 1]), np.ones((2, 3)) / 3)
 
 
-@pytest.mark.parametrize("kernel", ["sampled_td_update", "greedy_action", "table_row", "action_values"])
+@pytest.mark.parametrize(
+    "kernel", ["sampled_td_update", "greedy_action", "table_row", "action_values", "epsilon_greedy"]
+)
 def test_the_compiled_kernels_have_no_fused_multiply_add(kernel):
     compiled = getattr(kernels, kernel)
     if not compiled.signatures:  # compiled on first use: use it once
         policy, space = learner(OBSERVATION_SPACES[0], 0, False, 0.1), OBSERVATION_SPACES[0]
         policy.td_update(filled_buffer(space, 0, 1, False, False), 32, 0.9, 10.0)
         policy.q_values(np.array([0, 1]), policy.weights.numpy())
+        policy.masked_actions(np.array([0, 1]), policy.weights.numpy(), None, 0.0)
     for assembly in compiled.inspect_asm().values():
         assert "fma" not in assembly.lower()
 
@@ -192,3 +198,42 @@ def test_compiled_minibatch_rows_are_the_buffers_draws(n_envs, optimize_memory_u
     np.testing.assert_array_equal(rows[0], expected[0])
     np.testing.assert_array_equal(rows[1], expected[1])
     assert state[2] == after[2] and np.array_equal(state[1], after[1])
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    space=st.sampled_from(OBSERVATION_SPACES),
+    seed=st.integers(0, 2**32 - 1),
+    batch=st.integers(0, 6),
+    exploration_rate=st.sampled_from([0.0, 0.05, 0.5, 1.0]),
+    with_masks=st.booleans(),
+)
+def test_the_compiled_epsilon_greedy_takes_numpys_actions_with_numpys_draws(
+    space, seed, batch, exploration_rate, with_masks
+):
+    """The same actions as numpy's ``SFDQNPolicy.masked_actions`` and the same state of numpy's generator left, with
+    ties (most observations read the default row: every action ties), masks and one observation or a batch."""
+    policy = learner(space, seed, False, 0.1)
+    rng = np.random.default_rng(seed)
+    space.seed(seed)
+    observations = np.stack([space.sample() for _ in range(max(batch, 1))])
+    observation = observations if batch else observations[0]  # batch 0: one observation, not a batch
+    masks = None
+    if with_masks:
+        masks = rng.random((len(observations), 4)) < 0.5
+        masks[np.arange(len(observations)), rng.integers(0, 4, len(observations))] = True  # each has an action
+    saved, outcomes = np.random.get_state(), []
+    for act in (policy.masked_actions, functools.partial(SFDQNPolicy.masked_actions, policy)):  # compiled, numpy's
+        np.random.seed(seed)
+        policy.action_space.seed(seed)
+        actions, vectorized = act(observation, policy.weights.numpy(), masks, exploration_rate)
+        state = np.random.get_state()
+        outcomes.append((actions.tolist(), vectorized, state[2], state[1].tobytes()))
+    np.random.set_state(saved)
+    assert outcomes[0] == outcomes[1]
+
+
+def test_an_observation_outside_the_space_is_refused_by_the_compiled_epsilon_greedy():
+    policy = learner(spaces.MultiDiscrete([3, 4], start=[1, -1]), 0, False, 0.1)
+    with pytest.raises(ValueError, match=r"observation \[4, 0\] is outside the observation space"):
+        policy.masked_actions(np.array([[2, 0], [4, 0]]), policy.weights.numpy(), None, 0.0)

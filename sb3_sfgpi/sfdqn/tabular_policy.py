@@ -11,6 +11,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sb3_sfgpi.common.action_masks import checked_masks, sample_allowed
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 from sb3_sfgpi.tabular.network import TabularSFNetwork
@@ -134,6 +135,31 @@ class TabularPolicy(SFDQNPolicy):
         vectorized = is_vectorized_observation(observation, self.observation_space)
         obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
         return self.sf_net.action_values(obs, weights), vectorized
+
+    def masked_actions(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        weights: np.ndarray,
+        action_masks: np.ndarray | None,
+        exploration_rate: float | None,
+    ) -> tuple[np.ndarray, bool]:
+        """
+        :meth:`SFDQNPolicy.masked_actions`, the ε-greedy choice read and drawn by one compiled call
+        (:meth:`TabularSFNetwork.epsilon_greedy <sb3_sfgpi.tabular.network.TabularSFNetwork.epsilon_greedy>`): the
+        same actions from the same draws.
+        """
+        from sb3_sfgpi.tabular.numpy_random import global_stream  # numba loads with the first tabular read
+
+        stream = None if exploration_rate is None else global_stream()
+        if stream is None:  # the greedy choice draws nothing; another global generator only numpy reads
+            return super().masked_actions(observation, weights, action_masks, exploration_rate)
+        vectorized = is_vectorized_observation(observation, self.observation_space)
+        obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
+        masks = checked_masks(action_masks, len(obs), int(self.action_space.n))  # type: ignore[attr-defined]
+        actions = self.sf_net.epsilon_greedy(obs, weights, masks, exploration_rate, stream)
+        for i in np.flatnonzero(actions < 0):
+            actions[i] = sample_allowed(self.action_space, None if masks is None else masks[i])
+        return actions, vectorized
 
     def fill(self, value: float) -> None:
         """

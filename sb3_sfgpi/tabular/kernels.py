@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sb3_sfgpi.tabular.numpy_random import random_integers
+from sb3_sfgpi.tabular.numpy_random import random_double, random_integers
 
 _ONE = np.float32(1.0)
 
@@ -72,6 +72,76 @@ def action_values(
         for a in range(psi.shape[1]):
             values[i, a] = weighted_value(psi[slot, a], weights)
     return -1
+
+
+@njit(cache=True, nogil=True)
+def epsilon_greedy(
+    table: tuple,
+    observations: np.ndarray,
+    geometry: tuple[np.ndarray, np.ndarray, np.ndarray, int],
+    weights: np.ndarray,
+    masks: np.ndarray,
+    exploration_rate: float,
+    stream: tuple[np.ndarray, np.ndarray],
+    values: np.ndarray,
+    actions: np.ndarray,
+) -> int:
+    """
+    The ε-greedy actions of :meth:`SFDQNPolicy.masked_actions <sb3_sfgpi.sfdqn.policies.SFDQNPolicy.masked_actions>`
+    with numpy's draws (``stream``: :func:`~sb3_sfgpi.tabular.numpy_random.global_stream`), the same numbers: a
+    uniform draw per observation (it explores below ``exploration_rate``); then, unless every one explores, the
+    values (:func:`action_values`, ``-inf`` where ``masks`` forbids) and the greedy actions, ties broken by a uniform
+    draw per action of every observation, drawn only where some observation ties.
+
+    :param geometry: the observations' ``low``, ``end``, ``strides`` and ``first_row`` (see :func:`action_values`)
+    :param masks: the actions each observation has, shape ``(batch, n_actions)``, or empty: all
+    :param actions: written: each observation's action, ``-1`` where it explores (a uniform action is the caller's to
+        draw, from the action space's own generator)
+    :return: ``-1``, or the index of the first observation outside the space (see :func:`action_values`)
+    """
+    key, position = stream
+    explore = np.empty(observations.shape[0], dtype=np.bool_)
+    for i in range(observations.shape[0]):
+        explore[i] = random_double(key, position) < exploration_rate
+    if explore.all():
+        actions[:] = -1
+        return -1
+    low, end, strides, first_row = geometry
+    outside = action_values(table, observations, low, end, strides, first_row, weights, values)
+    if outside >= 0:
+        return outside
+    if masks.shape[0]:
+        for i in range(values.shape[0]):
+            for a in range(values.shape[1]):
+                if not masks[i, a]:
+                    values[i, a] = -np.inf
+    _greedy_random_ties(values, key, position, actions)
+    for i in range(actions.shape[0]):
+        if explore[i]:
+            actions[i] = -1
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _greedy_random_ties(values: np.ndarray, key: np.ndarray, position: np.ndarray, actions: np.ndarray) -> None:
+    """:func:`~sb3_sfgpi.sfdqn.networks.argmax_random_ties` on numpy's global generator: the same draws."""
+    n, n_actions = values.shape
+    best = np.empty(n, dtype=values.dtype)
+    n_best = 0
+    for i in range(n):
+        best[i] = values[i].max()  # NaN where a value is NaN, as numpy's
+        for a in range(n_actions):
+            if values[i, a] == best[i]:
+                n_best += 1
+    for i in range(n):
+        top, actions[i] = -2.0, 0
+        for a in range(n_actions):
+            score = np.float64(values[i, a] == best[i])  # no ties anywhere: the first greedy action
+            if n_best != n:
+                draw = random_double(key, position)  # a draw for every action of every observation
+                score = draw if values[i, a] == best[i] else -1.0
+            if score > top:
+                top, actions[i] = score, a
 
 
 @njit(cache=True, nogil=True)

@@ -101,18 +101,49 @@ class TabularSFNetwork(BasePolicy):
         """
         from sb3_sfgpi.tabular.kernels import action_values  # numba loads with the first tabular read
 
+        raw, observations, w, values = self._read_arguments(obs, weights)
+        geometry = (self._low, self._end, self._strides, self._first_row)
+        self._refuse_outside(raw, action_values(self.table_storage(), observations, *geometry, w, values))
+        return values
+
+    def epsilon_greedy(
+        self, obs: np.ndarray, weights: np.ndarray, masks: np.ndarray | None, exploration_rate: float, stream: tuple
+    ) -> np.ndarray:
+        """
+        ε-greedy actions in ``w · ψ(s, ·)`` drawn by compiled code from numpy's global generator
+        (:func:`~sb3_sfgpi.tabular.kernels.epsilon_greedy`: the draws of
+        :meth:`SFDQNPolicy.masked_actions <sb3_sfgpi.sfdqn.policies.SFDQNPolicy.masked_actions>`).
+
+        :param masks: the actions each observation has, boolean ``(batch, n_actions)``, or None: all
+        :param stream: :func:`~sb3_sfgpi.tabular.numpy_random.global_stream`
+        :return: the actions, ``-1`` where the observation explores (its uniform action is the caller's to draw)
+        :raises ValueError: as :meth:`action_values`
+        """
+        from sb3_sfgpi.tabular.kernels import epsilon_greedy
+
+        raw, observations, w, values = self._read_arguments(obs, weights)
+        actions = np.empty(len(raw), dtype=np.int64)
+        allowed = np.zeros((0, 0), dtype=bool) if masks is None else masks
+        geometry = (self._low, self._end, self._strides, self._first_row)
+        outside = epsilon_greedy(
+            self.table_storage(), observations, geometry, w, allowed, exploration_rate, stream, values, actions
+        )
+        self._refuse_outside(raw, outside)
+        return actions
+
+    def _read_arguments(self, obs: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The raw observations, as rows of components, ``w`` as float32 and a values buffer, for the kernels."""
         raw = np.asarray(obs)
         w = np.asarray(weights, dtype=np.float32)
         if w.shape != (self.reward_dim,):
             raise ValueError(f"a table's values need weights of shape ({self.reward_dim},), got {w.shape}")
-        observations = raw.reshape(len(raw), self._low.size)
         values = np.empty((len(raw), self.n_actions), dtype=np.float32)
-        outside = action_values(
-            self.table_storage(), observations, self._low, self._end, self._strides, self._first_row, w, values
-        )
+        return raw, raw.reshape(len(raw), self._low.size), w, values
+
+    def _refuse_outside(self, raw: np.ndarray, outside: int) -> None:
+        """Raise the error of observation ``outside`` (a kernel's answer) unless it is ``-1``."""
         if outside >= 0:
             raise self._outside(raw[outside])
-        return values
 
     def row_strides(self) -> tuple[np.ndarray, int]:
         """The mixed-radix strides of an observation's components and the row of the lowest observation: an
