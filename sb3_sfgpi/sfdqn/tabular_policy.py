@@ -131,10 +131,14 @@ class TabularPolicy(SFDQNPolicy):
 
     def q_values(self, observation: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
         """``w · ψ(s, a)`` read from the table with numpy (see :meth:`SFDQNPolicy.q_values`)."""
+        obs, vectorized = self._observation_rows(observation)
+        return self.sf_net.action_values(obs, weights), vectorized
+
+    def _observation_rows(self, observation: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The observation(s) as a batch, and whether they were one."""
         # SB3's is_vectorized_observation, without its image-transpose step (integer spaces are never images).
         vectorized = is_vectorized_observation(observation, self.observation_space)
-        obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
-        return self.sf_net.action_values(obs, weights), vectorized
+        return np.asarray(observation).reshape(-1, *self.observation_space.shape), vectorized
 
     def masked_actions(
         self,
@@ -153,8 +157,7 @@ class TabularPolicy(SFDQNPolicy):
         stream = None if exploration_rate is None else global_stream()
         if stream is None:  # the greedy choice draws nothing; another global generator only numpy reads
             return super().masked_actions(observation, weights, action_masks, exploration_rate)
-        vectorized = is_vectorized_observation(observation, self.observation_space)
-        obs = np.asarray(observation).reshape(-1, *self.observation_space.shape)
+        obs, vectorized = self._observation_rows(observation)  # type: ignore[arg-type]
         masks = checked_masks(action_masks, len(obs), int(self.action_space.n))  # type: ignore[attr-defined]
         actions = self.sf_net.epsilon_greedy(obs, weights, masks, exploration_rate, stream)
         for i in np.flatnonzero(actions < 0):

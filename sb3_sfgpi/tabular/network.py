@@ -76,6 +76,7 @@ class TabularSFNetwork(BasePolicy):
         self._low, self._strides, self._n_values = low.astype(np.int64), strides, n_values.astype(np.uint64)
         self._end = self._low + n_values.astype(np.int64)  # one past each component's highest value
         self._first_row = int(self._low @ strides)  # the row index of the lowest observation, before it is subtracted
+        self._geometry = (self._low, self._end, self._strides, self._first_row)  # as the kernels read it
         self.reward_dim = reward_dim
         self.n_actions = int(action_space.n)
         self.table = SparseTable(n_states, self.n_actions * reward_dim)
@@ -102,8 +103,7 @@ class TabularSFNetwork(BasePolicy):
         from sb3_sfgpi.tabular.kernels import action_values  # numba loads with the first tabular read
 
         raw, observations, w, values = self._read_arguments(obs, weights)
-        geometry = (self._low, self._end, self._strides, self._first_row)
-        self._refuse_outside(raw, action_values(self.table_storage(), observations, *geometry, w, values))
+        self._refuse_outside(raw, action_values(self.table_storage(), observations, *self._geometry, w, values))
         return values
 
     def epsilon_greedy(
@@ -124,9 +124,8 @@ class TabularSFNetwork(BasePolicy):
         raw, observations, w, values = self._read_arguments(obs, weights)
         actions = np.empty(len(raw), dtype=np.int64)
         allowed = np.zeros((0, 0), dtype=bool) if masks is None else masks
-        geometry = (self._low, self._end, self._strides, self._first_row)
         outside = epsilon_greedy(
-            self.table_storage(), observations, geometry, w, allowed, exploration_rate, stream, values, actions
+            self.table_storage(), observations, self._geometry, w, allowed, exploration_rate, stream, values, actions
         )
         self._refuse_outside(raw, outside)
         return actions
