@@ -8,7 +8,7 @@
                                          # known-fronts, deep-fronts (only when named)
     python -m benchmarks --output results.md
     python -m benchmarks known-fronts --seeds 0 1 2 --envs deep-sea-treasure resource-gathering fruit-tree
-    python -m benchmarks deep-fronts --seeds 0 1 2        # minecart(-deterministic), 15 × 10,000 steps
+    python -m benchmarks deep-fronts --seeds 0 1 2        # minecart(-deterministic), lunar lander: 15 × 10,000 steps
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
 repeats; the ratio is candidate speed / baseline speed (or baseline bytes / candidate bytes for memory),

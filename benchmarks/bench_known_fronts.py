@@ -12,7 +12,7 @@ scored on 50 Dirichlet(1) test weights (``random_weights(d, 50, rng=0)``):
 * **EU*** = mean of ``max_π w · V^π(s0)``: finite-horizon value iteration on the scalarised reward (deep-sea-treasure
   and fruit-tree: equal to the env's ``pareto_front(γ)``, see ``tests/test_known_fronts.py``; resource-gathering:
   above it, the env's front being too low). Minecart: its ``convex_coverage_set(γ)``, an approximation (EU/EU* may
-  exceed 1).
+  exceed 1). Lunar lander has no known front: its rows give EU alone, beside its peer's at the same env steps.
 
 Rows: per problem, EU/EU* mean ± std over the seeds with the per-seed values, then one row per seed (wall time of
 training with its per-iteration evaluations, env steps of training, |Π|). Where ``morl_baselines`` imports, a peer
@@ -21,7 +21,8 @@ scored the same way: MPMOQLearning (OLS weights, GPI, Dyna) on the tabular probl
 settings without PER and Dyna, :data:`GPI_LS_SETTINGS`, at our gradient updates per step) on the deep problems,
 whose EU is then Monte Carlo by the
 protocol of our test evaluation (:func:`rollout_expected_utility`: the same episodes' seeds per test weight).
-The deep problems (minecart, minecart-deterministic) are slow and run only when named (``deep-fronts``, or ``--envs``).
+The deep problems (minecart, minecart-deterministic, lunar lander) are slow and run only when named (``deep-fronts``, or
+``--envs``).
 """
 
 from __future__ import annotations
@@ -67,6 +68,7 @@ class Problem:
     tabular: bool = True
     eval_episodes: int = 5  # the preset's
     model: Callable[[Any, float], TabularMDP] | None = None  # its exact model's builder (env, γ); None: none
+    known_front: bool = True  # False: no optimum to score against (EU alone)
 
     def budget(self, quick: bool) -> tuple[int, int]:
         return self.quick if quick else (self.steps_per_iteration, self.iterations)
@@ -81,8 +83,12 @@ PROBLEMS = {
     "minecart-deterministic": Problem(
         "minecart-deterministic-v0", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1
     ),  # fmt: skip
+    # no known front (MO-Gymnasium gives none): EU beside the peer's, at minecart's budget
+    "lunar-lander": Problem(
+        "mo-lunar-lander-v3", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1, known_front=False
+    ),  # fmt: skip
 }
-DEEP = ("minecart", "minecart-deterministic")
+DEEP = ("minecart", "minecart-deterministic", "lunar-lander")
 DEFAULT = ("deep-sea-treasure", "resource-gathering", "fruit-tree")
 
 
@@ -127,8 +133,8 @@ def run_deep(
     envs: Sequence[str] | None = None,
     peer_steps: int | None = None,
 ) -> list[Row]:
-    """Minecart and minecart-deterministic (MLP learners, approximate fronts; slow): ``python -m benchmarks
-    deep-fronts``."""
+    """Minecart, minecart-deterministic (MLP learners, approximate fronts) and lunar lander (no known front); slow:
+    ``python -m benchmarks deep-fronts``."""
     return run(quick, seeds, envs or list(DEEP), peer_steps)
 
 
@@ -154,12 +160,15 @@ def _model(problem: Problem, env: Any, gamma: float) -> TabularMDP | None:
     return None if problem.model is None else problem.model(env, gamma)
 
 
-def _optimal_values(problem: Problem, env: Any, model: Any, weights: np.ndarray, gamma: float) -> np.ndarray:
-    """``max_π w · V^π(s0)`` per test weight: exact by the model, else from the env's (approximate) CCS."""
+def _best(problem: Problem, env: Any, model: Any, weights: np.ndarray, gamma: float) -> float | None:
+    """EU*, the mean of ``max_π w · V^π(s0)`` over the test weights: exact by the model, else from the env's
+    (approximate) CCS; None where the problem has no known front."""
     if model is not None:
-        return np.array([model.value(w) for w in weights])
+        return float(np.mean([model.value(w) for w in weights]))
+    if not problem.known_front:
+        return None
     front = np.array(env.unwrapped.convex_coverage_set(gamma))
-    return (weights @ front.T).max(axis=1)
+    return float((weights @ front.T).max(axis=1).mean())
 
 
 # --- SFOLS + GPI ------------------------------------------------------------------------------------------------------
@@ -171,13 +180,14 @@ def _problem_rows(problem: Problem, seeds: list[int], quick: bool) -> list[Row]:
     d = env.unwrapped.reward_space.shape[0]
     weights = random_weights(d, N_TEST_WEIGHTS, rng=0)
     model = _model(problem, env, gamma)
-    best = float(_optimal_values(problem, env, model, weights, gamma).mean())
+    best = _best(problem, env, model, weights, gamma)
     outcomes = [_train_sfols(problem, policy, learner, weights, model, seed, quick) for seed in seeds]
     steps, iterations = problem.budget(quick)
     case = f"{problem.env_id} (d={d}), SFOLS + GPI, {iterations} × {steps:,} steps"
     reference = "exact (value iteration)" if model is not None else "MO-Gymnasium's approximate CCS"
     front = _front_expected_utility(env, weights, gamma)
-    baseline = f"EU* {best:.4f}, {reference}" + ("" if front is None else f"; MO-Gymnasium's front: {front:.4f}")
+    baseline = "no known front: EU alone" if best is None else f"EU* {best:.4f}, {reference}"
+    baseline += "" if front is None else f"; MO-Gymnasium's front: {front:.4f}"
     return [_summary_row(case, outcomes, best, baseline, seeds)] + [
         _seed_row(problem.env_id, seed, outcome, best) for seed, outcome in zip(seeds, outcomes, strict=True)
     ]
@@ -231,10 +241,19 @@ def _mean_std(values: Sequence[float], digits: int = 3) -> str:
     return f"{mean} ± {statistics.stdev(values):,.{digits}f}" if len(values) > 1 else mean
 
 
-def _summary_row(case: str, outcomes: list[Outcome], best: float, baseline: str, seeds: list[int]) -> Row:
-    ratios = [o.expected_utility / best for o in outcomes]
+def _score(expected_utility: float, best: float | None) -> float:
+    """What a row reports: EU/EU* where the optimum is known, else EU (named by :func:`_score_name`)."""
+    return expected_utility if best is None else expected_utility / best
+
+
+def _score_name(best: float | None) -> str:
+    return "EU" if best is None else "EU/EU*"
+
+
+def _summary_row(case: str, outcomes: list[Outcome], best: float | None, baseline: str, seeds: list[int]) -> Row:
+    scores = [_score(o.expected_utility, best) for o in outcomes]
     notes = [
-        f"per seed ({', '.join(map(str, seeds))}): {', '.join(f'{r:.3f}' for r in ratios)}",
+        f"per seed ({', '.join(map(str, seeds))}): {', '.join(f'{r:.3f}' for r in scores)}",
         f"EU {_mean_std([o.expected_utility for o in outcomes], 4)}",
         f"wall {_mean_std([o.wall_time for o in outcomes], 0)} s",
         f"env steps {_mean_std([o.env_steps for o in outcomes], 0)}",
@@ -242,15 +261,15 @@ def _summary_row(case: str, outcomes: list[Outcome], best: float, baseline: str,
     ]
     if all(o.monte_carlo is not None for o in outcomes):
         notes.insert(2, f"run's Monte-Carlo EU {_mean_std([o.monte_carlo for o in outcomes], 4)}")
-    return Row(NAME, case, f"EU/EU* {_mean_std(ratios)}", baseline, note="; ".join(notes))
+    return Row(NAME, case, f"{_score_name(best)} {_mean_std(scores)}", baseline, note="; ".join(notes))
 
 
-def _seed_row(env_id: str, seed: int, outcome: Outcome, best: float) -> Row:
+def _seed_row(env_id: str, seed: int, outcome: Outcome, best: float | None) -> Row:
     notes = f"{outcome.wall_time:.0f} s, {outcome.env_steps:,} env steps, {outcome.iterations} iterations"
     if outcome.n_policies:
         notes += f", |Π| = {outcome.n_policies}"
-    return Row(NAME, f"{env_id} seed {seed}", f"EU/EU* {outcome.expected_utility / best:.3f}",
-               f"EU {outcome.expected_utility:.4f}", note=notes)  # fmt: skip
+    score = f"{_score_name(best)} {_score(outcome.expected_utility, best):.3f}"
+    return Row(NAME, f"{env_id} seed {seed}", score, f"EU {outcome.expected_utility:.4f}", note=notes)
 
 
 # --- morl-baselines (optional: pip install morl-baselines) ------------------------------------------------------------
@@ -385,14 +404,15 @@ def _peer_rows(peer: Peer, problem: Problem, seeds: list[int], quick: bool, peer
     _, learner = _learner_of(problem)
     weights = random_weights(env.unwrapped.reward_space.shape[0], N_TEST_WEIGHTS, rng=0)
     model = _model(problem, env, learner["gamma"])
-    best = float(_optimal_values(problem, env, model, weights, learner["gamma"]).mean())
+    best = _best(problem, env, model, weights, learner["gamma"])
     try:
         outcomes = [_train_peer(peer, algorithm, problem, learner, weights, model, seed, steps, iterations)
                     for seed in seeds]  # fmt: skip
     except Exception as error:  # noqa: BLE001 - another version's API: say so in the table, go on
         return [Row(NAME, case, f"failed: {type(error).__name__}: {error}")]
     label = f"{problem.env_id} morl-baselines {peer.name}"
-    return [_summary_row(case, outcomes, best, f"EU* {best:.4f}", seeds)] + [
+    baseline = "no known front: EU alone" if best is None else f"EU* {best:.4f}"
+    return [_summary_row(case, outcomes, best, baseline, seeds)] + [
         _seed_row(label, seed, outcome, best) for seed, outcome in zip(seeds, outcomes, strict=True)
     ]
 

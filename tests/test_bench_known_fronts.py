@@ -59,6 +59,22 @@ def test_the_peers_budgets():
     assert mpmoq.budget(fruit_tree, quick=False, total=None) == (5_000, 25)
 
 
+def test_a_problem_without_a_known_front_is_scored_by_eu_alone():
+    """Lunar lander has no front: its rows give EU, not a ratio to an EU* that does not exist; minecart keeps EU/EU*."""
+    lander, minecart = bench.PROBLEMS["lunar-lander"], bench.PROBLEMS["minecart"]
+    assert "lunar-lander" in bench.DEEP and not lander.known_front and minecart.known_front
+    weights = random_weights(4, 5, rng=0)
+    assert bench._best(lander, bench._make_env(lander), None, weights, 0.98) is None
+    best = bench._best(minecart, bench._make_env(minecart), None, random_weights(3, 5, rng=0), 0.98)
+    assert best is not None and best > 0  # minecart's CCS: some ore home beats standing still
+    outcomes = [bench.Outcome(-2.0, -2.0, 1.0, 100, 1, 1), bench.Outcome(-1.0, -1.0, 1.0, 100, 2, 1)]
+    summary = bench._summary_row("lander", outcomes, None, "no known front: EU alone", [0, 1])
+    assert summary.candidate == "EU -1.500 ± 0.707" and "per seed (0, 1): -2.000, -1.000" in summary.note
+    assert bench._seed_row("mo-lunar-lander-v3", 0, outcomes[0], None).candidate == "EU -2.000"
+    assert bench._seed_row("minecart-v0", 0, outcomes[0], -4.0).candidate == "EU/EU* 0.500"
+    assert bench._summary_row("m", outcomes, -4.0, "EU*", [0, 1]).candidate == "EU/EU* 0.375 ± 0.177"
+
+
 def test_a_peer_that_is_not_installed_gets_one_row_saying_so():
     missing = bench.Peer("no_such_morl_module", "Nothing", "nothing", bench._train_gpi_ls, len)
     rows = bench._peer_rows(missing, bench.PROBLEMS["minecart"], [0], quick=True, peer_steps=None)
