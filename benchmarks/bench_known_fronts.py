@@ -186,7 +186,7 @@ def _problem_rows(problem: Problem, seeds: list[int], quick: bool) -> list[Row]:
     case = f"{problem.env_id} (d={d}), SFOLS + GPI, {iterations} × {steps:,} steps"
     reference = "exact (value iteration)" if model is not None else "MO-Gymnasium's approximate CCS"
     front = _front_expected_utility(env, weights, gamma)
-    baseline = "no known front: EU alone" if best is None else f"EU* {best:.4f}, {reference}"
+    baseline = _reference(best) + ("" if best is None else f", {reference}")
     baseline += "" if front is None else f"; MO-Gymnasium's front: {front:.4f}"
     return [_summary_row(case, outcomes, best, baseline, seeds)] + [
         _seed_row(problem.env_id, seed, outcome, best) for seed, outcome in zip(seeds, outcomes, strict=True)
@@ -248,6 +248,11 @@ def _score(expected_utility: float, best: float | None) -> float:
 
 def _score_name(best: float | None) -> str:
     return "EU" if best is None else "EU/EU*"
+
+
+def _reference(best: float | None) -> str:
+    """What a row's scores are measured against: EU*, or nothing where the problem has no known front."""
+    return "no known front: EU alone" if best is None else f"EU* {best:.4f}"
 
 
 def _summary_row(case: str, outcomes: list[Outcome], best: float | None, baseline: str, seeds: list[int]) -> Row:
@@ -411,8 +416,7 @@ def _peer_rows(peer: Peer, problem: Problem, seeds: list[int], quick: bool, peer
     except Exception as error:  # noqa: BLE001 - another version's API: say so in the table, go on
         return [Row(NAME, case, f"failed: {type(error).__name__}: {error}")]
     label = f"{problem.env_id} morl-baselines {peer.name}"
-    baseline = "no known front: EU alone" if best is None else f"EU* {best:.4f}"
-    return [_summary_row(case, outcomes, best, baseline, seeds)] + [
+    return [_summary_row(case, outcomes, best, _reference(best), seeds)] + [
         _seed_row(label, seed, outcome, best) for seed, outcome in zip(seeds, outcomes, strict=True)
     ]
 
