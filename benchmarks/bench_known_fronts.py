@@ -83,12 +83,16 @@ PROBLEMS = {
     "minecart-deterministic": Problem(
         "minecart-deterministic-v0", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1
     ),  # fmt: skip
+    # the tabular problem with the deep preset's MLP SFs: exact EU by the model, 10 × 10,000 steps
+    "deep-sea-treasure-mlp": Problem(
+        "deep-sea-treasure-v0", 10_000, 10, (1_500, 2), tabular=False, eval_episodes=1, model=deep_sea_treasure_mdp
+    ),  # fmt: skip
     # no known front (MO-Gymnasium gives none): EU beside the peer's, at minecart's budget
     "lunar-lander": Problem(
         "mo-lunar-lander-v3", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1, known_front=False
     ),  # fmt: skip
 }
-DEEP = ("minecart", "minecart-deterministic", "lunar-lander")
+DEEP = ("minecart", "minecart-deterministic", "deep-sea-treasure-mlp", "lunar-lander")
 DEFAULT = ("deep-sea-treasure", "resource-gathering", "fruit-tree")
 
 
@@ -206,6 +210,7 @@ def _train_sfols(
         validation_weights=preset["validation_weights"],
         pool_replay=problem.tabular and TABULAR_POOL_REPLAY,
         test_weights=weights, eval_episodes=problem.eval_episodes, seed=seed,
+        verbose=0 if problem.tabular else 1,  # a line per iteration of the hour-long deep runs
     )  # fmt: skip
     start = time.perf_counter()
     try:

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from gymnasium import logger, spaces
 from pettingzoo import ParallelEnv
+from sfgpi_envs.four_room_dynamics import FourRoomEpisodes, Layout
 
 __all__ = [
     "AGENT_IDS",
@@ -108,6 +109,35 @@ def _layout() -> tuple[frozenset[tuple[int, int]], tuple[tuple[int, int], ...], 
 
 WALLS, OBJECT_CELLS, OBJECT_TYPES = _layout()
 N_OBJECTS: int = len(OBJECT_CELLS)
+
+
+def _move(cell: int, action: int) -> int:
+    """Where ``action`` leads from ``cell`` (``row * WIDTH + col``): the cell itself into a wall or off the grid."""
+    row, col = divmod(cell, WIDTH)
+    d_row, d_col = _MOVES[action]
+    r, c = row + d_row, col + d_col
+    if not (0 <= r < HEIGHT and 0 <= c < WIDTH) or (r, c) in WALLS:
+        return cell
+    return r * WIDTH + c
+
+
+def _tables() -> Layout:
+    """The grid's lookup tables (see :class:`~sfgpi_envs.four_room_dynamics.Layout`)."""
+    n_cells = HEIGHT * WIDTH
+    object_at = np.full(n_cells, -1, dtype=np.int64)
+    for k, (r, c) in enumerate(OBJECT_CELLS):
+        object_at[r * WIDTH + c] = k
+    next_cell = np.array([[_move(cell, action) for action in range(4)] for cell in range(n_cells)], dtype=np.int64)
+    xy = np.array([divmod(cell, WIDTH) for cell in range(n_cells)], dtype=np.int64)
+    object_type = np.array(OBJECT_TYPES, dtype=np.int64)
+    for table in (next_cell, object_at, object_type, xy):
+        table.flags.writeable = False
+    return Layout(next_cell, object_at, object_type, GOAL[0] * WIDTH + GOAL[1], xy)
+
+
+#: The grid's tables: the env's step reads them as tuples (one episode: Python indexes those faster), and
+#: :meth:`FourRoomParallelEnv.batched_episodes` as arrays.
+LAYOUT: Layout = _tables()
 
 
 class FourRoomParallelEnv(ParallelEnv):
@@ -188,19 +218,11 @@ class FourRoomParallelEnv(ParallelEnv):
         }
 
     def _build_tables(self) -> None:
-        """Flat tables for the hot loop: a cell is the int ``row * WIDTH + col``."""
-        n_cells = HEIGHT * WIDTH
-        self._next: tuple[tuple[int, ...], ...] = tuple(
-            tuple(self._move(cell, action) for action in range(4)) for cell in range(n_cells)
-        )
-        obj_at = [-1] * n_cells
-        for k, (r, c) in enumerate(OBJECT_CELLS):
-            obj_at[r * WIDTH + c] = k
-        self._obj_at: tuple[int, ...] = tuple(obj_at)
-        self._goal_cell: int = GOAL[0] * WIDTH + GOAL[1]
-        self._xy: tuple[np.ndarray, ...] = tuple(
-            np.array(divmod(cell, WIDTH), dtype=np.int64) for cell in range(n_cells)
-        )
+        """Flat tables for the hot loop (:data:`LAYOUT`'s): a cell is the int ``row * WIDTH + col``."""
+        self._next: tuple[tuple[int, ...], ...] = tuple(tuple(moves) for moves in LAYOUT.next_cell.tolist())
+        self._obj_at: tuple[int, ...] = tuple(LAYOUT.object_at.tolist())
+        self._goal_cell: int = LAYOUT.goal_cell
+        self._xy: tuple[np.ndarray, ...] = tuple(LAYOUT.xy)
         eye = np.eye(N_OBJECTIVES, dtype=np.float32)
         self._object_reward: tuple[np.ndarray, ...] = tuple(eye[t] for t in OBJECT_TYPES)
         self._zero_reward = np.zeros(N_OBJECTIVES, dtype=np.float32)
@@ -249,14 +271,15 @@ class FourRoomParallelEnv(ParallelEnv):
         arr.flags.writeable = False
         return arr
 
-    @staticmethod
-    def _move(cell: int, action: int) -> int:
-        row, col = divmod(cell, WIDTH)
-        d_row, d_col = _MOVES[action]
-        r, c = row + d_row, col + d_col
-        if not (0 <= r < HEIGHT and 0 <= c < WIDTH) or (r, c) in WALLS:
-            return cell
-        return r * WIDTH + c
+    def batched_episodes(self, n: int) -> FourRoomEpisodes:
+        """
+        ``n`` episodes of this env as arrays, stepped together by one compiled call
+        (:class:`~sb3_sfgpi.common.rollouts.BatchedEpisodes`): each is the episode this env runs from a reset.
+        """
+        starts = [r * WIDTH + c for r, c in self.starts]
+        return FourRoomEpisodes(
+            LAYOUT, starts, self.goal_reward, self.max_steps, self.observation_mode, self.possible_agents, n
+        )
 
     # ------------------------------------------------------------------ spaces
     def observation_space(self, agent: str) -> spaces.MultiDiscrete:

@@ -29,7 +29,15 @@ from sb3_sfgpi.common.checks import (
 )
 from sb3_sfgpi.common.env_copies import EnvCopies, SideBySide, SingleCopy
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env, time_limit
-from sb3_sfgpi.common.rollouts import EpisodeReturns, JointPolicy, RowPolicy, run_episodes, run_lockstep
+from sb3_sfgpi.common.rollouts import (
+    EpisodeReturns,
+    JointPolicy,
+    RowPolicy,
+    batched_episodes,
+    run_batched,
+    run_episodes,
+    run_lockstep,
+)
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import SAME_WEIGHT
 from sb3_sfgpi.learners import (
@@ -382,18 +390,26 @@ class MultiAgentRunner:
         decided: Callable[[list[int]], None] | None = None,
     ) -> list[EpisodeReturns] | None:
         """
-        :func:`~sb3_sfgpi.common.rollouts.run_lockstep`'s episodes, the last on the shared env and the others on
-        copies built by ``env_fn`` (:class:`~sb3_sfgpi.common.env_copies.SideBySide`): the returns :meth:`rollout`
-        gives one episode after another, and the shared env ends as that leaves it. None where there are no copies
-        (then :meth:`rollout` runs the episodes).
+        Episodes stepped together: the returns :meth:`rollout` gives one episode after another. Where the env's
+        class offers batched episodes (:func:`~sb3_sfgpi.common.rollouts.batched_episodes`: Four-Room), they run as
+        arrays (:func:`~sb3_sfgpi.common.rollouts.run_batched`) and the shared env is reset with the last seed (its
+        action spaces seeded as that episode leaves them); else by
+        :func:`~sb3_sfgpi.common.rollouts.run_lockstep`, the last on the shared env and the others on copies built
+        by ``env_fn`` (:class:`~sb3_sfgpi.common.env_copies.SideBySide`), and the shared env ends as the last
+        episode leaves it. None where there are neither (then :meth:`rollout` runs the episodes).
 
         :param per_result: consecutive episodes whose returns form one result
         :param decided: called after every decision with each row's episode (see ``run_lockstep``)
         """
-        envs = self._side_by_side.envs(len(seeds))
-        if not envs:
-            return envs
-        returns = run_lockstep(envs, policy, weights, seeds, self.gamma, per_result, decided)
+        batch = batched_episodes(self.env, len(seeds))
+        if batch is not None:
+            returns = run_batched(batch, policy, weights, seeds, self.gamma, per_result, decided)
+            self.env.reset(seed=seeds[-1])  # seeded as the last episode would have left it (its action spaces)
+        else:
+            envs = self._side_by_side.envs(len(seeds))
+            if not envs:
+                return envs
+            returns = run_lockstep(envs, policy, weights, seeds, self.gamma, per_result, decided)
         self._after_rollout()
         return returns
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numbers
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from pettingzoo import ParallelEnv
@@ -176,10 +176,7 @@ def run_lockstep(
         episode's rows are consecutive)
     :return: the returns of each ``per_result`` consecutive episodes
     """
-    if not len(envs) == len(weights) == len(seeds):
-        raise ValueError(f"one env, weight and seed per episode: got {len(envs)}, {len(weights)} and {len(seeds)}")
-    if per_result < 1 or len(envs) % per_result:
-        raise ValueError(f"per_result must divide the {len(envs)} episodes, got {per_result}")
+    _check_lockstep(len(envs), weights, seeds, per_result)
     episodes = [_Episode(env, seed, gamma, False) for env, seed in zip(envs, seeds, strict=True)]
     while running := [(k, episode) for k, episode in enumerate(episodes) if episode.live]:
         stepped = [(k, *episode.observations()) for k, episode in running]
@@ -196,6 +193,102 @@ def run_lockstep(
         for (k, _, _), joint_actions in zip(stepped, joint, strict=True):
             episodes[k].step(joint_actions)
     return [_returns_of(episodes[i : i + per_result]) for i in range(0, len(episodes), per_result)]
+
+
+class BatchedEpisodes(Protocol):
+    """
+    Episodes of one env held as arrays and stepped together, where an env offers them (its
+    ``batched_episodes(n)``; Four-Room's: :class:`~sfgpi_envs.four_room_dynamics.FourRoomEpisodes`): each is the
+    episode the env itself runs from a reset with its seed, without action masks. :func:`run_batched` steps them.
+    """
+
+    #: the agents' names, in the order of the arrays' agent axis (the env's ``possible_agents``)
+    agents: list[str]
+
+    @property
+    def reward_dim(self) -> int:
+        """Number of objectives."""
+
+    def reset(self, seeds: Sequence[int | None]) -> tuple[np.ndarray, np.ndarray]:
+        """Every episode reset with its seed: the observations ``(episodes, agents, ...)`` and the live agents."""
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Every episode with a live agent steps (``actions``: ``(episodes, agents)``, the live agents' are read): the
+        rewards ``(episodes, agents, d)`` and the agents live after the step.
+        """
+
+    def observations(self) -> np.ndarray:
+        """Every agent's observation now, shape ``(episodes, agents, ...)``."""
+
+    def final_infos(self) -> list[dict[str, dict[str, Any]]]:
+        """Each episode's last info of every agent."""
+
+
+def batched_episodes(env: ParallelEnv, n: int) -> BatchedEpisodes | None:
+    """
+    ``n`` episodes of ``env`` as arrays where its class offers them (``batched_episodes``), else None. A wrapper does
+    not pass them on: what it changes of the observations or rewards the arrays would not.
+    """
+    make = getattr(type(env), "batched_episodes", None)
+    return None if make is None else make(env, n)
+
+
+def run_batched(
+    batch: BatchedEpisodes,
+    policy: RowPolicy,
+    weights: np.ndarray,
+    seeds: Sequence[int],
+    gamma: float,
+    per_result: int = 1,
+    decided: Callable[[list[int]], None] | None = None,
+) -> list[EpisodeReturns]:
+    """
+    :func:`run_lockstep` on batched episodes (:class:`BatchedEpisodes`): the same decisions in the same rows (the
+    live agents of each episode, episodes in order) and the same returns, added up in the same order, with one call
+    for every episode's step.
+
+    :param batch: the episodes, one per seed
+    """
+    _check_lockstep(len(seeds), weights, seeds, per_result)
+    observations, live = batch.reset(seeds)
+    started = live.copy()
+    discounted = np.zeros((*live.shape, batch.reward_dim))
+    total = np.zeros_like(discounted)
+    discount = np.ones(len(live))
+    joint = np.zeros(live.shape, dtype=np.int64)
+    while live.any():
+        episodes, agents = np.nonzero(live)
+        names = [batch.agents[i] for i in agents]
+        joint[episodes, agents] = policy(observations[episodes, agents], np.asarray(weights)[episodes], None, names)
+        if decided is not None:
+            decided(episodes.tolist())
+        rewards, live = batch.step(joint)
+        rewards = rewards[episodes, agents]
+        discounted[episodes, agents] += discount[episodes, None] * rewards.astype(np.float64)
+        total[episodes, agents] += rewards
+        discount[np.unique(episodes)] *= gamma
+        observations = batch.observations()
+    infos = batch.final_infos()
+    results = []
+    for i in range(0, len(live), per_result):
+        rows = slice(i, i + per_result)
+        present = [(k, agent) for k, agent in enumerate(batch.agents) if started[rows, k].any()]
+        results.append(
+            EpisodeReturns(
+                {agent: discounted[rows][started[rows, k], k] for k, agent in present},
+                {agent: total[rows][started[rows, k], k] for k, agent in present},
+                infos[rows],
+            )
+        )
+    return results
+
+
+def _check_lockstep(n_envs: int, weights: np.ndarray, seeds: Sequence[int], per_result: int) -> None:
+    if not n_envs == len(weights) == len(seeds):
+        raise ValueError(f"one env, weight and seed per episode: got {n_envs}, {len(weights)} and {len(seeds)}")
+    if per_result < 1 or n_envs % per_result:
+        raise ValueError(f"per_result must divide the {n_envs} episodes, got {per_result}")
 
 
 def _row_masks(
