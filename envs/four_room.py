@@ -31,12 +31,15 @@ Conventions
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import logger, spaces
 from pettingzoo import ParallelEnv
-from sfgpi_envs.four_room_dynamics import FourRoomEpisodes, Layout
+
+if TYPE_CHECKING:  # numba (and what it imports) loads with the first batch, not with the env
+    from sfgpi_envs.four_room_dynamics import FourRoomEpisodes
 
 __all__ = [
     "AGENT_IDS",
@@ -109,6 +112,25 @@ def _layout() -> tuple[frozenset[tuple[int, int]], tuple[tuple[int, int], ...], 
 
 WALLS, OBJECT_CELLS, OBJECT_TYPES = _layout()
 N_OBJECTS: int = len(OBJECT_CELLS)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """
+    The grid as lookup tables; a cell is the integer ``row * width + col``.
+
+    :param next_cell: shape ``(cells, 4)``: where each action leads from each cell (the cell itself into a wall)
+    :param object_at: shape ``(cells,)``: the object on each cell, ``-1`` where none
+    :param object_type: shape ``(objects,)``: each object's type, the objective it rewards
+    :param goal_cell: the goal
+    :param xy: shape ``(cells, 2)``: each cell's ``(row, col)``, int64
+    """
+
+    next_cell: np.ndarray
+    object_at: np.ndarray
+    object_type: np.ndarray
+    goal_cell: int
+    xy: np.ndarray
 
 
 def _move(cell: int, action: int) -> int:
@@ -276,6 +298,8 @@ class FourRoomParallelEnv(ParallelEnv):
         ``n`` episodes of this env as arrays, stepped together by one compiled call
         (:class:`~sb3_sfgpi.common.rollouts.BatchedEpisodes`): each is the episode this env runs from a reset.
         """
+        from sfgpi_envs.four_room_dynamics import FourRoomEpisodes
+
         starts = [r * WIDTH + c for r, c in self.starts]
         return FourRoomEpisodes(
             LAYOUT, starts, self.goal_reward, self.max_steps, self.observation_mode, self.possible_agents, n
