@@ -2,7 +2,7 @@
 
 :meth:`FourRoomParallelEnv.batched_episodes <sfgpi_envs.four_room.FourRoomParallelEnv.batched_episodes>` gives
 :class:`FourRoomEpisodes`: GPI's rollouts (validation, value estimates, evaluation) run their episodes through it
-(:func:`~sb3_sfgpi.common.rollouts.run_batched`), one call per step for all of them, where one env per episode
+(:func:`~sb3_sfgpi.common.rollouts.run_lockstep`), one call per step for all of them, where one env per episode
 costs a Python step each. The env's own step stays in Python: for one episode a compiled call costs more than it
 saves (3.9 µs per step against 21.8 µs through these arrays). The rules are the env's:
 ``tests/test_four_room_batched.py`` steps both with the same actions and compares everything they return.

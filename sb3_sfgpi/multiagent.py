@@ -34,7 +34,6 @@ from sb3_sfgpi.common.rollouts import (
     JointPolicy,
     RowPolicy,
     batched_episodes,
-    run_batched,
     run_episodes,
     run_lockstep,
 )
@@ -392,7 +391,7 @@ class MultiAgentRunner:
         """
         Episodes stepped together: the returns :meth:`rollout` gives one episode after another. Where the env's
         class offers batched episodes (:func:`~sb3_sfgpi.common.rollouts.batched_episodes`: Four-Room), they run as
-        arrays (:func:`~sb3_sfgpi.common.rollouts.run_batched`) and the shared env is reset with the last seed (its
+        arrays (:class:`~sb3_sfgpi.common.rollouts.BatchedEpisodes`) and the shared env is reset with the last seed (its
         action spaces seeded as that episode leaves them); else by
         :func:`~sb3_sfgpi.common.rollouts.run_lockstep`, the last on the shared env and the others on copies built
         by ``env_fn`` (:class:`~sb3_sfgpi.common.env_copies.SideBySide`), and the shared env ends as the last
@@ -402,14 +401,12 @@ class MultiAgentRunner:
         :param decided: called after every decision with each row's episode (see ``run_lockstep``)
         """
         batch = batched_episodes(self.env, len(seeds))
+        envs = batch if batch is not None else self._side_by_side.envs(len(seeds))
+        if not envs:
+            return None
+        returns = run_lockstep(envs, policy, weights, seeds, self.gamma, per_result, decided)
         if batch is not None:
-            returns = run_batched(batch, policy, weights, seeds, self.gamma, per_result, decided)
             self.env.reset(seed=seeds[-1])  # seeded as the last episode would have left it (its action spaces)
-        else:
-            envs = self._side_by_side.envs(len(seeds))
-            if not envs:
-                return envs
-            returns = run_lockstep(envs, policy, weights, seeds, self.gamma, per_result, decided)
         self._after_rollout()
         return returns
 

@@ -1,5 +1,5 @@
 """Four-Room's batched episodes (compiled moves for many episodes) against the env's own step, and GPI's rollouts on
-them (``run_batched``) against one env per episode (``run_lockstep``): the same numbers, bit for bit."""
+them against one env per episode (``run_lockstep`` either way): the same numbers, bit for bit."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from sfgpi_envs.four_room import FourRoomParallelEnv
 
-from sb3_sfgpi.common.rollouts import batched_episodes, run_batched, run_lockstep
+from sb3_sfgpi.common.rollouts import batched_episodes, run_lockstep
 
 SETTINGS = st.fixed_dictionaries(
     {
@@ -67,13 +67,13 @@ def test_batched_episodes_step_as_the_env_does(kwargs, n, seed):
 
 @settings(max_examples=25, deadline=None)
 @given(kwargs=SETTINGS, n_weights=st.integers(1, 4), per_result=st.integers(1, 3), seed=st.integers(0, 2**16))
-def test_run_batched_gives_run_lockstep_returns_bit_for_bit(kwargs, n_weights, per_result, seed):
+def test_lockstep_on_batched_episodes_gives_the_envs_returns_bit_for_bit(kwargs, n_weights, per_result, seed):
     """The same decisions (rows, order, episodes) and the same discounted and plain returns and final infos."""
     n = n_weights * per_result
     weights = np.random.default_rng(seed).dirichlet(np.ones(3), n)
     seeds = [seed + i for i in range(n)]
     rows: list[list[int]] = []
-    batched = run_batched(
+    batched = run_lockstep(
         FourRoomParallelEnv(**kwargs).batched_episodes(n), random_policy(seed), weights, seeds, 0.95, per_result,
         rows.append,
     )  # fmt: skip

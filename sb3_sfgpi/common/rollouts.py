@@ -153,7 +153,7 @@ def run_episodes(
 
 
 def run_lockstep(
-    envs: Sequence[ParallelEnv],
+    envs: Sequence[ParallelEnv] | BatchedEpisodes,
     policy: RowPolicy,
     weights: np.ndarray,
     seeds: Sequence[int],
@@ -166,7 +166,9 @@ def run_lockstep(
     of ``policy``, each for its episode's weights. Each episode is the one :func:`run_episodes` runs on its env with
     its seed and a joint policy for its weights, where ``policy`` decides every row as it would alone.
 
-    :param envs: one env per episode (each is reset)
+    :param envs: one env per episode (each is reset), or the episodes as arrays (:class:`BatchedEpisodes`, one per
+        seed: one call steps them all; the same decisions in the same rows and the same returns, added up in the
+        same order)
     :param policy: the actions of a batch of observations, each for its own weights (:data:`RowPolicy`)
     :param weights: each episode's weights, shape ``(n_episodes, d)``
     :param seeds: each episode's seed
@@ -176,7 +178,13 @@ def run_lockstep(
         episode's rows are consecutive)
     :return: the returns of each ``per_result`` consecutive episodes
     """
-    _check_lockstep(len(envs), weights, seeds, per_result)
+    n_episodes = len(envs) if isinstance(envs, Sequence) else len(seeds)
+    if not n_episodes == len(weights) == len(seeds):
+        raise ValueError(f"one env, weight and seed per episode: got {n_episodes}, {len(weights)} and {len(seeds)}")
+    if per_result < 1 or n_episodes % per_result:
+        raise ValueError(f"per_result must divide the {n_episodes} episodes, got {per_result}")
+    if not isinstance(envs, Sequence):
+        return _run_batched(envs, policy, np.asarray(weights), seeds, gamma, per_result, decided)
     episodes = [_Episode(env, seed, gamma, False) for env, seed in zip(envs, seeds, strict=True)]
     while running := [(k, episode) for k, episode in enumerate(episodes) if episode.live]:
         stepped = [(k, *episode.observations()) for k, episode in running]
@@ -199,7 +207,7 @@ class BatchedEpisodes(Protocol):
     """
     Episodes of one env held as arrays and stepped together, where an env offers them (its
     ``batched_episodes(n)``; Four-Room's: :class:`~sfgpi_envs.four_room_dynamics.FourRoomEpisodes`): each is the
-    episode the env itself runs from a reset with its seed, without action masks. :func:`run_batched` steps them.
+    episode the env itself runs from a reset with its seed, without action masks. :func:`run_lockstep` steps them.
     """
 
     #: the agents' names, in the order of the arrays' agent axis (the env's ``possible_agents``)
@@ -234,23 +242,16 @@ def batched_episodes(env: ParallelEnv, n: int) -> BatchedEpisodes | None:
     return None if make is None else make(env, n)
 
 
-def run_batched(
+def _run_batched(
     batch: BatchedEpisodes,
     policy: RowPolicy,
     weights: np.ndarray,
     seeds: Sequence[int],
     gamma: float,
-    per_result: int = 1,
-    decided: Callable[[list[int]], None] | None = None,
+    per_result: int,
+    decided: Callable[[list[int]], None] | None,
 ) -> list[EpisodeReturns]:
-    """
-    :func:`run_lockstep` on batched episodes (:class:`BatchedEpisodes`): the same decisions in the same rows (the
-    live agents of each episode, episodes in order) and the same returns, added up in the same order, with one call
-    for every episode's step.
-
-    :param batch: the episodes, one per seed
-    """
-    _check_lockstep(len(seeds), weights, seeds, per_result)
+    """:func:`run_lockstep` on batched episodes: one step of every live agent of every episode a loop."""
     observations, live = batch.reset(seeds)
     started = live.copy()
     discounted = np.zeros((*live.shape, batch.reward_dim))
@@ -260,7 +261,7 @@ def run_batched(
     while live.any():
         episodes, agents = np.nonzero(live)
         names = [batch.agents[i] for i in agents]
-        joint[episodes, agents] = policy(observations[episodes, agents], np.asarray(weights)[episodes], None, names)
+        joint[episodes, agents] = policy(observations[episodes, agents], weights[episodes], None, names)
         if decided is not None:
             decided(episodes.tolist())
         rewards, live = batch.step(joint)
@@ -274,21 +275,11 @@ def run_batched(
     for i in range(0, len(live), per_result):
         rows = slice(i, i + per_result)
         present = [(k, agent) for k, agent in enumerate(batch.agents) if started[rows, k].any()]
-        results.append(
-            EpisodeReturns(
-                {agent: discounted[rows][started[rows, k], k] for k, agent in present},
-                {agent: total[rows][started[rows, k], k] for k, agent in present},
-                infos[rows],
-            )
-        )
+        returns = [
+            {agent: by_agent[rows][started[rows, k], k] for k, agent in present} for by_agent in (discounted, total)
+        ]
+        results.append(EpisodeReturns(*returns, infos[rows]))
     return results
-
-
-def _check_lockstep(n_envs: int, weights: np.ndarray, seeds: Sequence[int], per_result: int) -> None:
-    if not n_envs == len(weights) == len(seeds):
-        raise ValueError(f"one env, weight and seed per episode: got {n_envs}, {len(weights)} and {len(seeds)}")
-    if per_result < 1 or n_envs % per_result:
-        raise ValueError(f"per_result must divide the {n_envs} episodes, got {per_result}")
 
 
 def _row_masks(
