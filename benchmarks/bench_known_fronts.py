@@ -106,6 +106,7 @@ class Outcome:
     env_steps: int
     n_policies: int
     iterations: int
+    by_iteration: tuple[float, ...] = ()  # GPI's Monte-Carlo EU after each iteration (MASFOLS runs)
 
 
 def run(
@@ -228,6 +229,7 @@ def _train_sfols(
         env_steps=int(last["timesteps"]),
         n_policies=len(policy_set),
         iterations=len(masfols.history),
+        by_iteration=tuple(entry["mean_return"] for entry in masfols.history),
     )
 
 
@@ -278,6 +280,9 @@ def _seed_row(env_id: str, seed: int, outcome: Outcome, best: float | None) -> R
     notes = f"{outcome.wall_time:.0f} s, {outcome.env_steps:,} env steps, {outcome.iterations} iterations"
     if outcome.n_policies:
         notes += f", |Π| = {outcome.n_policies}"
+    if outcome.by_iteration:
+        trace = ", ".join(f"{_score(value, best):.2f}" for value in outcome.by_iteration)
+        notes += f"; {_score_name(best)} by iteration (Monte Carlo): {trace}"
     score = f"{_score_name(best)} {_score(outcome.expected_utility, best):.3f}"
     return Row(NAME, f"{env_id} seed {seed}", score, f"EU {outcome.expected_utility:.4f}", note=notes)
 

@@ -75,6 +75,29 @@ def test_a_problem_without_a_known_front_is_scored_by_eu_alone():
     assert bench._summary_row("m", outcomes, -4.0, "EU*", [0, 1]).candidate == "EU/EU* 0.375 ± 0.177"
 
 
+def test_a_seed_row_of_a_run_shows_gpis_score_after_every_iteration():
+    """The deep runs swing between iterations: a seed's row shows the whole trace, scored as its end is."""
+    outcome = bench.Outcome(4.0, 4.0, 1.0, 100, 2, 3, by_iteration=(2.0, -1.0, 4.0))
+    note = bench._seed_row("deep-sea-treasure-v0", 0, outcome, 5.0).note
+    assert note.endswith("EU/EU* by iteration (Monte Carlo): 0.40, -0.20, 0.80")
+    assert bench._seed_row("mo-lunar-lander-v3", 0, outcome, None).note.endswith(
+        "EU by iteration (Monte Carlo): 2.00, -1.00, 4.00"
+    )
+    assert "by iteration" not in bench._seed_row("x", 0, bench.Outcome(1.0, None, 1.0, 100, 1, 1), 2.0).note
+
+
+def test_deep_sea_treasure_with_mlp_successor_features_is_a_deep_problem_scored_exactly():
+    """The tabular problem with the deep preset's learners: EU* by value iteration at the deep preset's γ."""
+    problem = bench.PROBLEMS["deep-sea-treasure-mlp"]
+    assert "deep-sea-treasure-mlp" in bench.DEEP and not problem.tabular and problem.model is not None
+    policy, learner = bench._learner_of(problem)
+    assert policy == "ConditionedMlpPolicy"
+    env = bench._make_env(problem)
+    weights = random_weights(2, 50, rng=0)
+    best = bench._best(problem, env, bench._model(problem, env, learner["gamma"]), weights, learner["gamma"])
+    assert best == pytest.approx(4.8558, abs=1e-4)  # the deep-fronts row's EU* at γ 0.98
+
+
 def test_a_peer_that_is_not_installed_gets_one_row_saying_so():
     missing = bench.Peer("no_such_morl_module", "Nothing", "nothing", bench._train_gpi_ls, len)
     rows = bench._peer_rows(missing, bench.PROBLEMS["minecart"], [0], quick=True, peer_steps=None)
