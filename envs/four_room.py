@@ -46,12 +46,14 @@ __all__ = [
     "DEFAULT_STARTS",
     "DOWN",
     "GOAL",
+    "LAYOUT",
     "LEFT",
     "MAZE",
     "OBJECT_TYPE_NAMES",
     "RIGHT",
     "UP",
     "FourRoomParallelEnv",
+    "Layout",
     "parallel_env",
 ]
 
@@ -144,7 +146,7 @@ def _move(cell: int, action: int) -> int:
 
 
 def _tables() -> Layout:
-    """The grid's lookup tables (see :class:`~sfgpi_envs.four_room_dynamics.Layout`)."""
+    """The grid's lookup tables (see :class:`Layout`)."""
     n_cells = HEIGHT * WIDTH
     object_at = np.full(n_cells, -1, dtype=np.int64)
     for k, (r, c) in enumerate(OBJECT_CELLS):
