@@ -389,13 +389,11 @@ class MultiAgentRunner:
         decided: Callable[[list[int]], None] | None = None,
     ) -> list[EpisodeReturns] | None:
         """
-        Episodes stepped together: the returns :meth:`rollout` gives one episode after another. Where the env's
-        class offers batched episodes (:func:`~sb3_sfgpi.common.rollouts.batched_episodes`: Four-Room), they run as
-        arrays (:class:`~sb3_sfgpi.common.rollouts.BatchedEpisodes`) and the shared env is reset with the last seed (its
-        action spaces seeded as that episode leaves them); else by
-        :func:`~sb3_sfgpi.common.rollouts.run_lockstep`, the last on the shared env and the others on copies built
-        by ``env_fn`` (:class:`~sb3_sfgpi.common.env_copies.SideBySide`), and the shared env ends as the last
-        episode leaves it. None where there are neither (then :meth:`rollout` runs the episodes).
+        :func:`~sb3_sfgpi.common.rollouts.run_lockstep`'s episodes: the returns :meth:`rollout` gives one after
+        another. They run as the env's batched episodes where its class offers them (Four-Room; the shared env is
+        then reset with the last seed, its action spaces seeded as that episode leaves them), else the last on the
+        shared env and the others on copies built by ``env_fn`` (:class:`~sb3_sfgpi.common.env_copies.SideBySide`);
+        None where there are neither (then :meth:`rollout` runs the episodes).
 
         :param per_result: consecutive episodes whose returns form one result
         :param decided: called after every decision with each row's episode (see ``run_lockstep``)
