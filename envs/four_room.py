@@ -39,7 +39,7 @@ from gymnasium import logger, spaces
 from pettingzoo import ParallelEnv
 
 if TYPE_CHECKING:  # numba (and what it imports) loads with the first batch, not with the env
-    from sfgpi_envs.four_room_dynamics import FourRoomEpisodes
+    from sfgpi_envs.four_room_dynamics import FourRoomEpisodes, PackedDynamics
 
 __all__ = [
     "AGENT_IDS",
@@ -306,6 +306,30 @@ class FourRoomParallelEnv(ParallelEnv):
         return FourRoomEpisodes(
             LAYOUT, starts, self.goal_reward, self.max_steps, self.observation_mode, self.possible_agents, n
         )
+
+    def packed_dynamics(self) -> PackedDynamics:
+        """
+        The env's step compiled over its state packed in integers, for compiled training loops
+        (:class:`~sfgpi_envs.four_room_dynamics.PackedDynamics`): the step, the constant model and the current
+        episode's state; :meth:`restore_packed_state` makes the env continue from a state the step advanced.
+        """
+        from sfgpi_envs.four_room_dynamics import PackedDynamics, pack_model, pack_state, packed_step
+
+        live = [agent in self.agents for agent in self.possible_agents]
+        mode = OBSERVATION_MODES.index(self.observation_mode)
+        model = pack_model(LAYOUT, len(self.possible_agents), self.max_steps, mode)
+        state = pack_state(self._t, self._cells, live, self._present, self._collected)
+        return PackedDynamics(packed_step, model, self.goal_reward.copy(), state)
+
+    def restore_packed_state(self, state: np.ndarray) -> None:
+        """Continue from a packed state of :meth:`packed_dynamics` (as the packed step left it)."""
+        from sfgpi_envs.four_room_dynamics import unpack_state
+
+        self._t, self._cells, live, self._present, collected = unpack_state(state, len(self.possible_agents), N_OBJECTS)
+        self.agents = [agent for agent, is_live in zip(self.possible_agents, live, strict=True) if is_live]
+        self._gone[:] = ~np.array(self._present)
+        for mine, theirs in zip(self._collected, collected, strict=True):
+            mine[:] = theirs
 
     # ------------------------------------------------------------------ spaces
     def observation_space(self, agent: str) -> spaces.MultiDiscrete:

@@ -1,4 +1,4 @@
-"""Four-Room's moves as arrays: one compiled step for many episodes side by side.
+"""Four-Room's moves as arrays: one compiled step for many episodes side by side, and a packed step for training.
 
 :meth:`FourRoomParallelEnv.batched_episodes <sfgpi_envs.four_room.FourRoomParallelEnv.batched_episodes>` gives
 :class:`FourRoomEpisodes`: GPI's rollouts (validation, value estimates, evaluation) run their episodes through it
@@ -6,15 +6,21 @@
 costs a Python step each. The env's own step stays in Python: for one episode a compiled call costs more than it
 saves (3.9 µs per step against 21.8 µs through these arrays). The rules are the env's:
 ``tests/test_four_room_batched.py`` steps both with the same actions and compares everything they return.
+
+:func:`packed_step` is the env's step over its state packed in integers
+(:meth:`FourRoomParallelEnv.packed_dynamics <sfgpi_envs.four_room.FourRoomParallelEnv.packed_dynamics>`), for
+compiled training loops that call it from their own compiled code (``sb3_sfgpi.tabular.joint_steps``): it is
+compiled with the signature :data:`PACKED_STEP_SIGNATURE` so that a loop typed by that signature takes it as a
+first-class function and numba can cache that loop.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 if TYPE_CHECKING:
     from sfgpi_envs.four_room import Layout
@@ -165,3 +171,112 @@ class FourRoomEpisodes:
             {agent: {"collected": self.collected[e, i].copy()} for i, agent in enumerate(self.agents)}
             for e in range(len(self.cells))
         ]
+
+
+class PackedDynamics(NamedTuple):
+    """An env's step compiled over a packed state (the arguments of :func:`packed_step` an env gives)."""
+
+    step: Any  #: the compiled step, of signature :data:`PACKED_STEP_SIGNATURE`
+    model: np.ndarray  #: int64: what never changes (layout, settings)
+    constants: np.ndarray  #: float32: rewards the step gives
+    state: np.ndarray  #: int64: the episode's state now
+
+
+#: The signature of a packed step: ``(model, constants, state, actions, observations, rewards) -> ended``.
+PACKED_STEP_SIGNATURE = types.int64(
+    types.int64[::1], types.float32[::1], types.int64[::1], types.int64[::1], types.int64[:, ::1], types.float32[:, ::1]
+)
+#: Where each part of a packed Four-Room model starts: agents, objects, cells, goal cell, step limit, observation mode,
+#: then ``next_cell``, ``object_at``, ``object_type`` and ``xy`` flattened.
+_AGENTS, _OBJECTS, _CELLS, _GOAL, _LIMIT, _MODE, _TABLES = range(7)
+#: Observation modes as the packed model names them (the env's ``OBSERVATION_MODES`` order).
+_XY, _OWN, _FULL = range(3)
+
+
+@njit(PACKED_STEP_SIGNATURE, cache=True, nogil=True)
+def packed_step(
+    model: np.ndarray,
+    constants: np.ndarray,
+    state: np.ndarray,
+    actions: np.ndarray,
+    observations: np.ndarray,
+    rewards: np.ndarray,
+) -> int:
+    """
+    The env's ``step`` on a packed state, unless it ends an agent's episode: then nothing changes and it returns 1 (the
+    caller steps the env itself); else every live agent moves, in agent order, and it returns 0.
+
+    :param model: the layout and settings, constant (see :func:`pack_model`)
+    :param constants: the goal's reward, float32
+    :param state: the step count, each agent's cell, whether it is live, each object's presence, what each agent
+        collected (see :func:`pack_state`), updated
+    :param actions: each agent's action (the live agents' are read)
+    :param observations: written: each live agent's observation after the step
+    :param rewards: written: each live agent's reward
+    """
+    m, k, n_cells = model[_AGENTS], model[_OBJECTS], model[_CELLS]
+    next_cell = model[_TABLES : _TABLES + 4 * n_cells]
+    object_at = model[_TABLES + 4 * n_cells : _TABLES + 5 * n_cells]
+    object_type = model[_TABLES + 5 * n_cells : _TABLES + 5 * n_cells + k]
+    xy = model[_TABLES + 5 * n_cells + k :]
+    cells, live, present, collected = (
+        state[1 : 1 + m],
+        state[1 + m : 1 + 2 * m],
+        state[1 + 2 * m : 1 + 2 * m + k],
+        state[1 + 2 * m + k :],
+    )
+    if state[0] + 1 >= model[_LIMIT]:
+        return 1  # every live agent is truncated
+    for i in range(m):
+        if live[i] and next_cell[4 * cells[i] + actions[i]] == model[_GOAL]:
+            return 1
+    state[0] += 1
+    for i in range(m):
+        if not live[i]:
+            continue
+        cells[i] = next_cell[4 * cells[i] + actions[i]]
+        rewards[i, :] = 0.0
+        j = object_at[cells[i]]
+        if j >= 0 and present[j]:
+            present[j] = 0
+            collected[i * k + j] = 1
+            rewards[i, object_type[j]] = 1.0
+    for i in range(m):
+        if live[i]:
+            observations[i, 0], observations[i, 1] = xy[2 * cells[i]], xy[2 * cells[i] + 1]
+            for j in range(observations.shape[1] - 2):
+                observations[i, 2 + j] = collected[i * k + j] if model[_MODE] == _OWN else 1 - present[j]
+    return 0
+
+
+def pack_model(layout: Layout, n_agents: int, max_steps: int, observation_mode: int) -> np.ndarray:
+    """The constant part of :func:`packed_step`'s arguments: the layout's tables and the env's settings."""
+    n_cells, k = len(layout.object_at), len(layout.object_type)
+    header = [n_agents, k, n_cells, layout.goal_cell, max_steps, observation_mode]
+    tables = (layout.next_cell, layout.object_at, layout.object_type, layout.xy)
+    return np.concatenate([np.array(header, dtype=np.int64), *(table.reshape(-1) for table in tables)])
+
+
+def pack_state(
+    step_count: int,
+    cells: Sequence[int],
+    live: Sequence[bool],
+    present: Sequence[bool],
+    collected: Sequence[np.ndarray],
+) -> np.ndarray:
+    """An episode's state as :func:`packed_step` reads it."""
+    parts = [[step_count], cells, np.asarray(live, dtype=np.int64), np.asarray(present, dtype=np.int64)]
+    return np.concatenate(
+        [np.asarray(part, dtype=np.int64) for part in parts] + [np.asarray(collected, dtype=np.int64).reshape(-1)]
+    )
+
+
+def unpack_state(
+    state: np.ndarray, n_agents: int, n_objects: int
+) -> tuple[int, list[int], list[bool], list[bool], np.ndarray]:
+    """:func:`pack_state`'s parts: the step count, cells, live flags, objects present and what each agent collected."""
+    m, k = n_agents, n_objects
+    live = [bool(x) for x in state[1 + m : 1 + 2 * m]]
+    present = [bool(x) for x in state[1 + 2 * m : 1 + 2 * m + k]]
+    collected = state[1 + 2 * m + k :].reshape(m, k).astype(bool)
+    return int(state[0]), [int(x) for x in state[1 : 1 + m]], live, present, collected

@@ -82,6 +82,8 @@ class OLSCallback(BaseCallback):
     """
 
     model: MultiAgentRunner  # type: ignore[assignment]
+    #: its ``on_step`` counts steps and reads nothing of them: the runner may show it compiled steps in batches
+    takes_steps_in_batches = True
 
     def __init__(
         self,

@@ -73,6 +73,16 @@ class EpisodeMonitor:
         """Forget the episodes under way (the env was reset)."""
         self._episodes = {}
 
+    def episode(self, copy: int, agent: str) -> tuple[np.ndarray, int]:
+        """The vector return and length of an agent's episode so far (zero where it has just started)."""
+        episode = self._episodes.setdefault((copy, agent), [np.zeros(self.reward_dim), 0])
+        return episode[0], episode[1]
+
+    def add_steps(self, copy: int, agent: str, episode_return: np.ndarray, steps: int) -> None:
+        """Record ``steps`` more steps of an agent's episode, which brought its return to ``episode_return``."""
+        episode = self._episodes.setdefault((copy, agent), [np.zeros(self.reward_dim), 0])
+        episode[0], episode[1] = episode_return, episode[1] + steps
+
     def info(self, key: tuple[int, str], step: Transitions) -> dict[str, Any]:
         """The info of ``key`` (``(copy, agent)``), with the episode's vector return where it ended."""
         info = step.infos[key]

@@ -39,6 +39,7 @@ from sb3_sfgpi.common.rollouts import (
 )
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import SAME_WEIGHT
+from sb3_sfgpi.compiled_steps import PendingStep, compiled_steps
 from sb3_sfgpi.learners import (
     EpisodeMonitor,
     LearnerFactory,
@@ -284,24 +285,15 @@ class MultiAgentRunner:
                 last = batched.copy() if whole else replaced(learner._last_obs, rows, batched)  # type: ignore[arg-type]
                 learner._last_obs = learner._last_original_obs = last  # type: ignore[assignment]
 
-    def step(self) -> bool:
+    def step(self, chosen: PendingStep | None = None) -> bool:
         """
         One joint step: every live agent of every copy acts, its learner stores the transition and trains when due.
 
+        :param chosen: the step's actions, already chosen for the learners (by
+            :class:`~sb3_sfgpi.compiled_steps.CompiledSteps`), or None: they choose them now
         :return: False if a learner's callback asked to stop
         """
-        actions: list[dict[str, int]] = [{} for _ in range(self.n_envs)]
-        sampled = {}
-        for name, slots in self.slots.items():
-            live = [i for i, (copy, agent) in enumerate(slots) if agent in self._live[copy]]
-            if live:
-                learner = self.learners[name]
-                learner._last_action_masks = self._slot_masks(slots)
-                action, buffer_action = learner._sample_action(learner.learning_starts, None, learner.n_envs)
-                for i in live:
-                    copy, agent = slots[i]
-                    actions[copy][agent] = int(action[i])
-                sampled[name] = (live, buffer_action)
+        actions, sampled = self._behaviour_actions() if chosen is None else chosen
         results = self.copies.step(actions)
         self.num_timesteps += 1
         merged: list[dict] = [{}, {}, {}, {}, {}]  # observations, rewards, terminations, truncations, infos
@@ -328,6 +320,22 @@ class MultiAgentRunner:
         if finished:
             self.reset_env(copies=finished)
         return keep_going
+
+    def _behaviour_actions(self) -> PendingStep:
+        """Every live slot's behaviour action (SB3's ``_sample_action``), and each learner's sampled slots, actions."""
+        actions: list[dict[str, int]] = [{} for _ in range(self.n_envs)]
+        sampled = {}
+        for name, slots in self.slots.items():
+            live = [i for i, (copy, agent) in enumerate(slots) if agent in self._live[copy]]
+            if live:
+                learner = self.learners[name]
+                learner._last_action_masks = self._slot_masks(slots)
+                action, buffer_action = learner._sample_action(learner.learning_starts, None, learner.n_envs)
+                for i in live:
+                    copy, agent = slots[i]
+                    actions[copy][agent] = int(action[i])
+                sampled[name] = (live, buffer_action)
+        return actions, sampled
 
     def _note_masks(self, copy: int, infos: Mapping[str, Mapping[str, Any]]) -> None:
         """Keep the action masks (``info["action_mask"]``) of copy ``copy``'s agents' new observations."""
@@ -446,15 +454,30 @@ class MultiAgentRunner:
             callback.on_training_end()
             return self
         end = self.num_timesteps + total_timesteps
+        compiled = compiled_steps(self, callback, total_timesteps)
         bar = tqdm(total=total_timesteps, desc="training", unit="step", disable=not progress_bar)
         try:
-            while self.num_timesteps < end:
-                keep_going = self.step()
+            keep_going = True
+            while self.num_timesteps < end and keep_going:
+                if compiled is not None:
+                    keep_going = self._show_compiled_steps(compiled.run(end - self.num_timesteps), callback, bar)
+                    if self.num_timesteps == end or not keep_going:
+                        break
+                keep_going = self.step(None if compiled is None else compiled.pending)
                 bar.update(1)
                 callback.update_locals(locals())
-                if not callback.on_step() or not keep_going:
-                    break
+                keep_going = callback.on_step() and keep_going
         finally:
             bar.close()
         callback.on_training_end()
         return self
+
+    def _show_compiled_steps(self, steps: int, callback: BaseCallback, bar: tqdm) -> bool:
+        """Count ``steps`` joint steps done by compiled code and show each to the runner-level callback."""
+        bar.update(steps)
+        callback.update_locals({"steps": steps})
+        for _ in range(steps):
+            self.num_timesteps += 1
+            if not callback.on_step():
+                return False
+        return True

@@ -7,7 +7,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sb3_sfgpi.tabular.numpy_random import global_stream, random_double, random_integers
+from sb3_sfgpi.tabular.numpy_random import (
+    global_stream,
+    pcg64_integer,
+    pcg64_words,
+    random_double,
+    random_integers,
+    set_pcg64_words,
+)
 
 
 @pytest.fixture
@@ -106,3 +113,28 @@ def test_a_generator_that_is_not_a_mersenne_twister_has_no_stream():
     finally:
         np.random.set_bit_generator(original)
     assert global_stream() is not None
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1), calls=st.lists(st.tuples(st.integers(0, 2), st.integers(1, 2**32 - 1)), max_size=40)
+)
+def test_compiled_pcg64_integers_are_a_generators_and_leave_its_state(seed, calls):
+    """``pcg64_integer`` draws ``Generator.integers(n)`` bit for bit, interleaved with numpy's own draws of the same
+    generator (floats and 64-bit integers move its buffered half), and leaves the state numpy would."""
+    compiled, reference = np.random.default_rng(seed), np.random.default_rng(seed)
+    for kind, n in calls:
+        if kind == 0:
+            words = pcg64_words(compiled)
+            drawn = pcg64_integer(words, n)
+            set_pcg64_words(compiled, words)
+            assert drawn == reference.integers(n)
+        elif kind == 1:
+            assert compiled.random() == reference.random()
+        else:
+            assert compiled.integers(2**40) == reference.integers(2**40)
+        assert compiled.bit_generator.state == reference.bit_generator.state
+
+
+def test_a_generator_that_is_not_pcg64_has_no_words():
+    assert pcg64_words(np.random.Generator(np.random.MT19937(0))) is None

@@ -136,10 +136,10 @@ def test_train_traffic_workers_crash_and_resume(tmp_path, monkeypatch, capsys):
 
     step = MultiAgentRunner.step
 
-    def crash_in_second_iteration(self):
+    def crash_in_second_iteration(self, *chosen):
         if self.num_timesteps == 20:
             self.env.sim.close()  # the simulation dies under the env
-        return step(self)
+        return step(self, *chosen)
 
     monkeypatch.setattr(MultiAgentRunner, "step", crash_in_second_iteration)
     capsys.readouterr()

@@ -288,8 +288,11 @@ class SumoSimulation:
         """Build an error message with SUMO's own complaint (re-running the sumo binary if needed)."""
         if not complaint.strip():
             complaint = _sumo_complaint(find_sumo_binary(False), args)
-        files = [args[i + 1] for i, a in enumerate(args[:-1]) if a in ("-n", "--net-file", "-r", "--route-files",
-                                                                       "-a", "--additional-files")]
+        files = [
+            args[i + 1]
+            for i, a in enumerate(args[:-1])
+            if a in ("-n", "--net-file", "-r", "--route-files", "-a", "--additional-files")
+        ]
         detail = complaint.strip() or str(exc)
         return f"SUMO could not load the simulation (files: {', '.join(files)}): {detail}"
 

@@ -250,11 +250,17 @@ class SFDQN(MOOffPolicyAlgorithm):
         self._n_calls += 1
         if self._n_calls % max(self.target_update_interval // self.n_envs, 1) == 0:
             self.policy.update_target(self.tau)
-        if self.exploration_steps is None:
-            self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
-        else:
-            self.exploration_rate = self.exploration_schedule(1.0 - self.num_timesteps / self.exploration_steps)
+        self.exploration_rate = self.exploration_rate_at(self.num_timesteps, self._current_progress_remaining)
         self.logger.record("rollout/exploration_rate", self.exploration_rate)
+
+    def exploration_rate_at(self, num_timesteps: int, progress_remaining: float) -> float:
+        """
+        ε after the step that brings the learner to ``num_timesteps`` steps, ``progress_remaining`` of its
+        ``learn()`` left: over ``exploration_steps`` steps where given, else over ``exploration_fraction`` of the call.
+        """
+        if self.exploration_steps is None:
+            return self.exploration_schedule(progress_remaining)
+        return self.exploration_schedule(1.0 - num_timesteps / self.exploration_steps)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)

@@ -262,12 +262,12 @@ class TabularPolicy(SFDQNPolicy):
             if outcome == STORE_ROWS:
                 net.table.store(rows)
         if outcome == DIVERGED:
-            raise _diverged(lr, batch_size)
+            raise diverged_error(lr, batch_size)
         with np.errstate(over="raise", invalid="raise"):  # a loss beyond float32 is divergence too
             try:
                 return float(0.5 * np.square(td_error).sum())
             except FloatingPointError:
-                raise _diverged(lr, batch_size) from None
+                raise diverged_error(lr, batch_size) from None
 
     @staticmethod
     def minibatch_rows(replay_buffer: MOReplayBuffer, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -302,7 +302,7 @@ class TabularPolicy(SFDQNPolicy):
         )
 
 
-def _diverged(lr: float, batch_size: int) -> ValueError:
+def diverged_error(lr: float, batch_size: int) -> ValueError:
     """The error of a tabular TD update whose values overflowed float32."""
     return ValueError(
         f"the tabular TD update diverged (its values overflowed float32) with learning_rate {lr:g} and batch_size "

@@ -81,6 +81,14 @@ class TabularSFNetwork(BasePolicy):
         self.n_actions = int(action_space.n)
         self.table = SparseTable(n_states, self.n_actions * reward_dim)
 
+    @property
+    def geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """
+        How compiled code finds an observation's row: each component's lowest value and one past its highest, the
+        mixed-radix strides and the row of the lowest observation (:func:`~sb3_sfgpi.tabular.kernels.action_values`).
+        """
+        return self._geometry
+
     def table_storage(self) -> tuple[np.ndarray, np.ndarray]:
         """
         The table as compiled code reads it: its storage, shape ``(slots + 1, n_actions, d)`` (the default row last),

@@ -96,6 +96,23 @@ class SparseTable:
             slots = slot_map.take(rows)
         return slots.astype(np.int64)
 
+    def slot_rows(self) -> np.ndarray:
+        """The row of each slot, with room for every slot of the storage (a view, replaced when the table grows)."""
+        return self._rows
+
+    def reserve(self, extra: int) -> None:
+        """Make room for ``extra`` more stored rows (compiled code stores them itself: :meth:`adopt_stored`)."""
+        self._grow(self._count + extra)
+
+    def adopt_stored(self, count: int) -> None:
+        """
+        Hold ``count`` stored rows: compiled code stored the new ones in the room :meth:`reserve` made, as
+        :meth:`store` does (values, :meth:`slot_rows` and the slot map).
+        """
+        if not self._count <= count <= len(self._rows):
+            raise ValueError(f"a table of {self._count} stored rows and room for {len(self._rows)} cannot hold {count}")
+        self._count = count
+
     def _grow(self, needed: int) -> None:
         """Make room for ``needed`` stored rows (at least doubling), keeping the stored and default rows."""
         capacity = len(self._rows)

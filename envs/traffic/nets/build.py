@@ -38,9 +38,12 @@ NET_FILE = NETS_DIR / f"{PREFIX}.net.xml"
 """The committed, built network."""
 
 NETCONVERT_OPTIONS: tuple[str, ...] = (
-    "--no-turnarounds", "true",
-    "--offset.disable-normalization", "true",
-    "--no-warnings", "true",
+    "--no-turnarounds",
+    "true",
+    "--offset.disable-normalization",
+    "true",
+    "--no-warnings",
+    "true",
 )
 """Options passed to netconvert in addition to the input/output files."""
 
@@ -79,13 +82,19 @@ def build_network(output: str | os.PathLike[str] | None = None, *, netconvert: s
     out = Path(output).resolve() if output is not None else NET_FILE
     cmd = [
         netconvert or find_netconvert(),
-        "--node-files", f"{PREFIX}.nod.xml",
-        "--type-files", f"{PREFIX}.typ.xml",
-        "--edge-files", f"{PREFIX}.edg.xml",
-        "--connection-files", f"{PREFIX}.con.xml",
-        "--tllogic-files", f"{PREFIX}.tll.xml",
+        "--node-files",
+        f"{PREFIX}.nod.xml",
+        "--type-files",
+        f"{PREFIX}.typ.xml",
+        "--edge-files",
+        f"{PREFIX}.edg.xml",
+        "--connection-files",
+        f"{PREFIX}.con.xml",
+        "--tllogic-files",
+        f"{PREFIX}.tll.xml",
         *NETCONVERT_OPTIONS,
-        "--output-file", str(out),
+        "--output-file",
+        str(out),
     ]
     # Run inside the sources folder so that the recorded input paths are relative.
     proc = subprocess.run(cmd, cwd=NETS_DIR, capture_output=True, text=True, check=False)
