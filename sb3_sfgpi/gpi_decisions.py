@@ -188,6 +188,21 @@ class BatchedGPI(ABC):
         :param per_row: ``w`` holds one weight per observation, shape ``(batch, d)`` (as :meth:`predict_rows`)
         :return: the actions, shape ``(batch,)``, and the members followed, one set of indices per observation
         """
+        actions, attaining = self.predict_attaining(observation, w, action_masks, per_row)
+        patterns, pattern_of = distinct_columns(attaining)
+        return actions, [patterns[i] for i in pattern_of.tolist()]
+
+    def predict_attaining(
+        self,
+        observation: np.ndarray,
+        w: np.ndarray | Sequence[float],
+        action_masks: np.ndarray | None = None,
+        per_row: bool = False,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        :meth:`predict_followed` with the members followed as a boolean matrix, shape ``(n_policies, batch)``: True
+        where a member attains GPI's value of the action taken.
+        """
         weights = self._validated_weights(w, per_row=per_row)
         obs, _ = self._obs_to_array(observation)
         if per_row:
@@ -196,8 +211,7 @@ class BatchedGPI(ABC):
         best = q.max(axis=0)
         actions = best.argmax(axis=1)
         rows = np.arange(len(actions))
-        attaining = q[:, rows, actions] == best[rows, actions]  # (n_policies, batch)
-        return actions, [frozenset(np.flatnonzero(column).tolist()) for column in attaining.T]
+        return actions, q[:, rows, actions] == best[rows, actions]
 
     def predict(
         self,
@@ -253,3 +267,18 @@ def _check_one_weight_per_row(weights: np.ndarray, obs: np.ndarray) -> None:
     """Refuse per-row weights that are not one per observation."""
     if len(weights) != len(obs):
         raise ValueError(f"one weight per observation: got {len(weights)} weights for {len(obs)} observations")
+
+
+def distinct_columns(attaining: np.ndarray) -> tuple[list[frozenset[int]], np.ndarray]:
+    """
+    The distinct columns of a boolean matrix as sets of their True rows, and each column's index among them (a batch
+    of decisions has few distinct sets of members followed: one set is built per pattern, keyed by its packed bits).
+
+    :param attaining: shape ``(n_policies, batch)``
+    :return: the sets, and for each column the index of its set, shape ``(batch,)``
+    """
+    packed = np.ascontiguousarray(np.packbits(attaining, axis=0).T)  # (batch, bytes): at least one member
+    keys = packed.view(np.dtype((np.void, packed.shape[1]))).reshape(-1)
+    _, first, pattern_of = np.unique(keys, return_index=True, return_inverse=True)
+    sets = [frozenset(np.flatnonzero(attaining[:, column]).tolist()) for column in first.tolist()]
+    return sets, pattern_of.reshape(-1)

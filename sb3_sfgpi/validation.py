@@ -24,6 +24,7 @@ from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.evaluation import Lockstep, Rollout, summarize_test_episodes
 from sb3_sfgpi.gpi import Decisions, GPIPolicy
+from sb3_sfgpi.gpi_decisions import distinct_columns
 from sb3_sfgpi.tabular.network import TabularSFNetwork
 
 #: One weight's decisions, every agent, decision and episode in order: observations, action masks (None: the env
@@ -71,6 +72,36 @@ def _masks_of(trace: Sequence[Decisions], n_actions: int) -> np.ndarray | None:
     return np.concatenate(
         [np.ones((len(step.actions), n_actions), dtype=bool) if step.masks is None else step.masks for step in trace]
     )
+
+
+def _runs_decisions(
+    steps: Sequence[tuple[Any, ...]], n_runs: int, episodes: int, n_actions: int
+) -> list[tuple[frozenset[frozenset[int]], Decided]]:
+    """
+    Each run's members followed and decisions from the steps of episodes stepped together: run ``j`` holds episodes
+    ``j * episodes`` to ``(j + 1) * episodes - 1``, its decisions in episode order, each episode's in step order (as
+    one weight's episodes one after another give them).
+
+    :param steps: per step: the observations, action masks (or None), actions, members attaining GPI's value (shape
+        ``(n_policies, rows)``) and each row's episode
+    """
+    if not steps:  # no decision (episodes that end at reset)
+        return [(frozenset(), (np.empty((0,)), None, np.empty((0,), dtype=np.int64)))] * n_runs
+    observations, actions = np.concatenate([s[0] for s in steps]), np.concatenate([s[2] for s in steps])
+    masks = _masks_of([Decisions(s[0], s[1], s[2], []) for s in steps], n_actions)
+    patterns, pattern_of = distinct_columns(np.concatenate([s[3] for s in steps], axis=1))
+    episode_of = np.concatenate([s[4] for s in steps])
+    order = np.argsort(episode_of, kind="stable")  # episode by episode, each in step order
+    bounds = np.searchsorted(episode_of[order], np.arange(n_runs + 1) * episodes).tolist()
+    runs = []
+    for start, stop in zip(bounds[:-1], bounds[1:], strict=True):
+        rows = order[start:stop]
+        followed = frozenset(patterns[i] for i in np.unique(pattern_of[rows]).tolist())
+        if not len(rows):
+            runs.append((followed, (np.empty((0,)), None, np.empty((0,), dtype=np.int64))))
+            continue
+        runs.append((followed, (observations[rows], None if masks is None else masks[rows], actions[rows])))
+    return runs
 
 
 def _without(sets: frozenset[frozenset[int]], member: int) -> frozenset[frozenset[int]]:
@@ -155,21 +186,16 @@ class ValidationScorer:
     def _together(self, policy_set: GPIPolicy, indices: list[int]) -> list[Run] | None:
         """Every weight's episodes stepped together, each decision traced to its episode (None: the runner cannot)."""
         n = self.episodes
-        traces: list[list[Decisions]] = [[] for _ in range(len(indices) * n)]
+        steps: list[tuple[Any, ...]] = []  # per decision step: observations, masks, actions, members followed, episodes
         last: list[Any] = []
 
         def act(obs: np.ndarray, weights: np.ndarray, masks: np.ndarray | None, _: list[str]) -> np.ndarray:
-            actions, members = policy_set.predict_followed(obs, weights, masks, per_row=True)
-            last[:] = [obs, masks, actions, members]
+            actions, attaining = policy_set.predict_attaining(obs, weights, masks, per_row=True)
+            last[:] = [obs, masks, actions, attaining]
             return actions
 
         def decided(episodes: list[int]) -> None:
-            obs, masks, actions, members = last
-            starts = [r for r in range(len(episodes)) if r == 0 or episodes[r] != episodes[r - 1]]
-            for start, stop in zip(starts, [*starts[1:], len(episodes)], strict=True):  # an episode's rows: together
-                rows = slice(start, stop)
-                step_masks = None if masks is None else masks[rows]
-                traces[episodes[start]].append(Decisions(obs[rows], step_masks, actions[rows], members[rows]))
+            steps.append((*last, np.asarray(episodes, dtype=np.int64)))
 
         seeds = [self.seeds[i] + episode for i in indices for episode in range(n)]
         weights = np.repeat(self.weights[indices], n, axis=0)
@@ -177,10 +203,8 @@ class ValidationScorer:
         if returns is None:
             return None
         self.rollouts += len(indices)
-        return [
-            self._run(result, [step for trace in traces[j * n : (j + 1) * n] for step in trace], policy_set)
-            for j, result in enumerate(returns)
-        ]
+        decisions = _runs_decisions(steps, len(indices), n, policy_set.action_space.n)
+        return [(result, *decided) for result, decided in zip(returns, decisions, strict=True)]
 
     def _episodes(self, policy_set: GPIPolicy, i: int) -> Run:
         trace: list[Decisions] = []
