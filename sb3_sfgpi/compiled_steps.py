@@ -11,7 +11,7 @@ random draw end as the step-by-step path leaves them (``tests/test_compiled_step
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import spaces
@@ -100,6 +100,7 @@ class CompiledSteps:
         self._rewards = np.zeros((n_agents, runner.reward_dim), dtype=np.float32)
         #: the step :meth:`run` chose the actions of and Python must take (None: the learners choose theirs)
         self.pending: PendingStep | None = None
+        self._kernel: Any = None  # typed once: numba's typing of the learners' arrays costs more than a call
 
     def run(self, max_steps: int) -> int:
         """
@@ -119,8 +120,9 @@ class CompiledSteps:
             dynamics = runner.env.packed_dynamics()  # type: ignore[attr-defined]
             arrays = tuple(self._learner_arrays(agent) for agent in runner.agents)
             stream = global_stream()
-            kernel = joint_steps_kernel(arrays, stream, self._observations)  # type: ignore[arg-type]
-            stop, done = kernel(
+            if self._kernel is None:
+                self._kernel = joint_steps_kernel(arrays, stream, self._observations)  # type: ignore[arg-type]
+            stop, done = self._kernel(
                 dynamics.step, dynamics.model, dynamics.constants, dynamics.state, live, arrays, *stream,
                 max_steps - total, self._actions, self._observations, self._rewards,
             )  # fmt: skip
