@@ -23,37 +23,47 @@ from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
 
 if TYPE_CHECKING:
-    from sb3_sfgpi.multiagent import MultiAgentRunner
+    from sb3_sfgpi.learners import EpisodeMonitor
     from sb3_sfgpi.tabular.joint_steps import LearnerArrays
 
 #: The pending step of a runner: each copy's actions, and each learner's sampled slots and buffer actions.
 PendingStep = tuple[list[dict[str, int]], dict[str, tuple[list[int], np.ndarray]]]
 
 
-def compiled_steps(runner: MultiAgentRunner, callback: BaseCallback, steps: int) -> CompiledSteps | None:
+def compiled_steps(
+    env: Any,
+    learners: dict[str, SFDQN],
+    callbacks: dict[str, BaseCallback],
+    monitor: EpisodeMonitor,
+    runner_callback: BaseCallback,
+    steps: int,
+) -> CompiledSteps | None:
     """
-    Compiled batches of the runner's next ``steps`` joint steps where they give what its steps give, else None: the
-    env's own class offers a packed step (``packed_dynamics``), one copy, one table learner per agent, one update per
-    training step without a separate target table, no action masks, no callbacks of the learners, and runner-level
-    callbacks that take their steps in batches (``takes_steps_in_batches``).
-    """
-    env_class = type(runner.env)
+    Compiled batches of a runner's next ``steps`` joint steps where they give what its steps give, else None: the env's
+    own class offers a packed step (``packed_dynamics``), each agent's learner a table of its own with one update per
+    training step and no separate target table, no callbacks of the learners, and runner-level callbacks that take
+    their steps in batches (``takes_steps_in_batches``). The runner checks the rest (one env copy, no action masks).
+
+    :param env: the runner's env (one copy)
+    :param learners: agent -> its learner; ``callbacks``: agent -> the learner's callback
+    :param monitor: the runner's episode returns so far
+    :param runner_callback: the runner-level callback(s) of the call
+    """  # fmt: skip
+    env_class = type(env)
     if getattr(env_class, "packed_dynamics", None) is None or not hasattr(env_class, "restore_packed_state"):
         return None
-    callbacks = callback.callbacks if isinstance(callback, CallbackList) else [callback]
-    if not all(getattr(type(c), "takes_steps_in_batches", False) for c in callbacks):
+    shown = runner_callback.callbacks if isinstance(runner_callback, CallbackList) else [runner_callback]
+    if not all(getattr(type(c), "takes_steps_in_batches", False) for c in shown):
         return None
-    if runner.n_envs != 1 or runner._masks or any(len(agents) != 1 for agents in runner.groups.values()):
-        return None
-    if not all(_plain_table_learner(runner.learners[name], runner._learner_callbacks[name]) for name in runner.groups):
+    if not all(_plain_table_learner(learners[agent], callbacks[agent]) for agent in learners):
         return None
     from sb3_sfgpi.tabular.joint_steps import PACKED_STEP_SIGNATURE
     from sb3_sfgpi.tabular.numpy_random import global_stream
 
-    step = runner.env.packed_dynamics().step  # type: ignore[attr-defined]
+    step = env.packed_dynamics().step
     if global_stream() is None or PACKED_STEP_SIGNATURE not in getattr(step, "nopython_signatures", ()):
         return None
-    return CompiledSteps(runner, steps)
+    return CompiledSteps(env, learners, callbacks, monitor, steps)
 
 
 def _plain_table_learner(learner: SFDQN, callback: BaseCallback) -> bool:
@@ -84,28 +94,40 @@ def _plain_table_learner(learner: SFDQN, callback: BaseCallback) -> bool:
 
 class CompiledSteps:
     """
-    A runner's joint steps of one ``learn()`` call, run in compiled batches (see :func:`compiled_steps`).
+    A runner's joint steps of one ``learn()`` call, run in compiled batches (see :func:`compiled_steps`): the env's
+    packed state and the learners' arrays go in, the learners get back what SB3's per-step machinery would have left
+    them.
 
-    :param runner: the runner, its iteration started
+    :param env: the env, its episode under way
+    :param learners: agent -> its learner, its iteration started; ``callbacks``: agent -> its learner's callback
+    :param monitor: the runner's episode returns so far
     :param steps: the joint steps of the call (how far the learners' schedules are read ahead)
     """
 
-    def __init__(self, runner: MultiAgentRunner, steps: int):
-        self.runner = runner
-        self._schedules = {name: _schedule_values(runner.learners[name], steps) for name in runner.groups}
-        n_agents = len(runner.agents)
-        obs_size = int(np.prod(runner.env.observation_space(runner.agents[0]).shape))
-        self._actions = np.zeros(n_agents, dtype=np.int64)
-        self._observations = np.zeros((n_agents, obs_size), dtype=np.int64)
-        self._rewards = np.zeros((n_agents, runner.reward_dim), dtype=np.float32)
+    def __init__(
+        self,
+        env: Any,
+        learners: dict[str, SFDQN],
+        callbacks: dict[str, BaseCallback],
+        monitor: EpisodeMonitor,
+        steps: int,
+    ):
+        self.env, self.learners, self.callbacks, self.monitor = env, learners, callbacks, monitor
+        self.agents = list(learners)
+        self._schedules = {agent: _schedule_values(learner, steps) for agent, learner in learners.items()}
+        obs_size = int(np.prod(env.observation_space(self.agents[0]).shape))
+        reward_dim = self.learners[self.agents[0]].reward_dim
+        self._actions = np.zeros(len(self.agents), dtype=np.int64)
+        self._observations = np.zeros((len(self.agents), obs_size), dtype=np.int64)
+        self._rewards = np.zeros((len(self.agents), reward_dim), dtype=np.float32)
         #: the step :meth:`run` chose the actions of and Python must take (None: the learners choose theirs)
         self.pending: PendingStep | None = None
         self._kernel: Any = None  # typed once: numba's typing of the learners' arrays costs more than a call
 
-    def run(self, max_steps: int) -> int:
+    def run(self, max_steps: int, live_agents: set[str]) -> int:
         """
-        Up to ``max_steps`` joint steps, stopping before one that Python must take (:attr:`pending` then holds its
-        actions where it ends an episode).
+        Up to ``max_steps`` joint steps of the agents in ``live_agents``, stopping before one that Python must take
+        (:attr:`pending` then holds its actions where it ends an episode).
 
         :return: the joint steps done
         :raises ValueError: a TD update diverged (as :meth:`~sb3_sfgpi.sfdqn.tabular_policy.TabularPolicy.td_update`)
@@ -113,12 +135,11 @@ class CompiledSteps:
         from sb3_sfgpi.tabular.joint_steps import EPISODE_ENDS, TABLE_FULL, UPDATE_DIVERGED, joint_steps_kernel
         from sb3_sfgpi.tabular.numpy_random import global_stream
 
-        runner, total = self.runner, 0
-        live = np.array([agent in runner._live[0] for agent in runner.agents])
+        live, total = np.array([agent in live_agents for agent in self.agents]), 0
         self.pending = None
         while True:
-            dynamics = runner.env.packed_dynamics()  # type: ignore[attr-defined]
-            arrays = tuple(self._learner_arrays(agent) for agent in runner.agents)
+            dynamics = self.env.packed_dynamics()
+            arrays = tuple(self._learner_arrays(agent) for agent in self.agents)
             stream = global_stream()
             if self._kernel is None:
                 self._kernel = joint_steps_kernel(arrays, stream, self._observations)  # type: ignore[arg-type]
@@ -127,16 +148,15 @@ class CompiledSteps:
                 max_steps - total, self._actions, self._observations, self._rewards,
             )  # fmt: skip
             if stop == UPDATE_DIVERGED:  # ``done`` is the learner's index
-                raise _diverged(runner.learners[runner.agents[done]], arrays[done])
+                raise _diverged(self.learners[self.agents[done]], arrays[done])
             total += done
-            runner.env.restore_packed_state(dynamics.state)  # type: ignore[attr-defined]
-            for agent, learner_arrays in zip(runner.agents, arrays, strict=True):
-                self._give_back(agent, learner_arrays, done if agent in runner._live[0] else 0)
-            runner._episode_steps[0] += done
+            self.env.restore_packed_state(dynamics.state)
+            for agent, is_live, learner_arrays in zip(self.agents, live, arrays, strict=True):
+                self._give_back(agent, learner_arrays, done if is_live else 0)
             if stop != TABLE_FULL:
                 break
-            for agent, learner_arrays in zip(runner.agents, arrays, strict=True):
-                runner.learners[agent].policy.sf_net.table.reserve(learner_arrays.scratch.shape[1])
+            for agent, learner_arrays in zip(self.agents, arrays, strict=True):
+                self.learners[agent].policy.sf_net.table.reserve(learner_arrays.scratch.shape[1])
         if stop == EPISODE_ENDS:
             self.pending = self._chosen(live)
         return total
@@ -146,12 +166,12 @@ class CompiledSteps:
         from sb3_sfgpi.tabular.joint_steps import LearnerArrays
         from sb3_sfgpi.tabular.numpy_random import pcg64_words
 
-        learner = self.runner.learners[agent]
+        learner = self.learners[agent]
         net, buffer = learner.policy.sf_net, learner.replay_buffer
         psi, slot_map = net.table_storage()
         low, end, strides, first_row = net.geometry
         base, epsilons, learning_rates = self._schedules[agent]
-        episode_return, _ = self.runner._monitor.episode(0, agent)
+        episode_return, _ = self.monitor.episode(0, agent)
         planning_interval = learner.planning_interval if learner.planning_sweeps else 0
         counters = [
             learner.num_timesteps,
@@ -167,7 +187,7 @@ class CompiledSteps:
             psi, slot_map, net.table.slot_rows(), tuple(buffer.flat_storage()), low, end, strides,
             learner.policy.weights_array(), epsilons, learning_rates,
             pcg64_words(learner.action_space.np_random), learner._last_obs.reshape(-1).copy(),  # type: ignore[union-attr, arg-type]
-            episode_return.copy(), np.zeros((learner.batch_size, self.runner.reward_dim), dtype=np.float32),
+            episode_return.copy(), np.zeros((learner.batch_size, learner.reward_dim), dtype=np.float32),
             np.zeros((3, learner.batch_size), dtype=np.int64), np.array([*counters, -1], dtype=np.int64),
             np.array(settings, dtype=np.int64), np.array([learner.exploration_rate, learner.gamma]),
         )  # fmt: skip
@@ -177,7 +197,7 @@ class CompiledSteps:
         from sb3_sfgpi.tabular.joint_steps import FULL, LAST_TRAIN, N_CALLS, N_UPDATES, NUM_TIMESTEPS, POS, STORED
         from sb3_sfgpi.tabular.numpy_random import set_pcg64_words
 
-        learner, counters = self.runner.learners[agent], arrays.counters
+        learner, counters = self.learners[agent], arrays.counters
         set_pcg64_words(learner.action_space.np_random, arrays.generator)
         learner.policy.sf_net.table.adopt_stored(int(counters[STORED]))
         if not steps:
@@ -186,8 +206,8 @@ class CompiledSteps:
         learner.replay_buffer.pos, learner.replay_buffer.full = int(counters[POS]), bool(counters[FULL])
         learner._last_obs = arrays.last_obs.reshape(1, -1)  # type: ignore[assignment]
         learner.exploration_rate = float(arrays.rates[0])
-        self.runner._monitor.add_steps(0, agent, arrays.episode_return, steps)
-        callback = self.runner._learner_callbacks[agent]
+        self.monitor.add_steps(0, agent, arrays.episode_return, steps)
+        callback = self.callbacks[agent]
         callback.n_calls += steps
         callback.num_timesteps = learner.num_timesteps
         if counters[LAST_TRAIN] >= 0:  # the records of its last update, made at that step's progress
@@ -201,10 +221,13 @@ class CompiledSteps:
         learner.logger.record("rollout/exploration_rate", learner.exploration_rate)
 
     def _chosen(self, live: np.ndarray) -> PendingStep:
-        """The step the kernel chose the actions of, in the runner's terms."""
-        agents = [agent for agent, is_live in zip(self.runner.agents, live, strict=True) if is_live]
-        actions = {agent: int(self._actions[self.runner.agents.index(agent)]) for agent in agents}
-        return [actions], {agent: ([0], np.array([actions[agent]], dtype=np.int64)) for agent in agents}
+        """The step the kernel chose the actions of, in the runner's terms (one copy, one slot per learner)."""
+        actions = {
+            agent: int(action)
+            for agent, action, is_live in zip(self.agents, self._actions, live, strict=True)
+            if is_live
+        }
+        return [actions], {agent: ([0], np.array([action], dtype=np.int64)) for agent, action in actions.items()}
 
 
 def _schedule_values(learner: SFDQN, steps: int) -> tuple[int, np.ndarray, np.ndarray]:

@@ -39,7 +39,7 @@ from sb3_sfgpi.common.rollouts import (
 )
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import SAME_WEIGHT
-from sb3_sfgpi.compiled_steps import PendingStep, compiled_steps
+from sb3_sfgpi.compiled_steps import CompiledSteps, PendingStep, compiled_steps
 from sb3_sfgpi.learners import (
     EpisodeMonitor,
     LearnerFactory,
@@ -454,13 +454,15 @@ class MultiAgentRunner:
             callback.on_training_end()
             return self
         end = self.num_timesteps + total_timesteps
-        compiled = compiled_steps(self, callback, total_timesteps)
+        compiled = self._compiled_steps(callback, total_timesteps)
         bar = tqdm(total=total_timesteps, desc="training", unit="step", disable=not progress_bar)
         try:
             keep_going = True
             while self.num_timesteps < end and keep_going:
                 if compiled is not None:
-                    keep_going = self._show_compiled_steps(compiled.run(end - self.num_timesteps), callback, bar)
+                    done = compiled.run(end - self.num_timesteps, self._live[0])
+                    self._episode_steps[0] += done
+                    keep_going = self._show_compiled_steps(done, callback, bar)
                     if self.num_timesteps == end or not keep_going:
                         break
                 keep_going = self.step(None if compiled is None else compiled.pending)
@@ -471,6 +473,13 @@ class MultiAgentRunner:
             bar.close()
         callback.on_training_end()
         return self
+
+    def _compiled_steps(self, callback: BaseCallback, steps: int) -> CompiledSteps | None:
+        """The iteration's joint steps in compiled batches where they give what :meth:`step` gives (else None)."""
+        if self.n_envs != 1 or self._masks or self.sharing == SHARED:
+            return None
+        learners = {agent: self.learners[agent] for agent in self.agents}  # in the env's order of agents
+        return compiled_steps(self.env, learners, self._learner_callbacks, self._monitor, callback, steps)
 
     def _show_compiled_steps(self, steps: int, callback: BaseCallback, bar: tqdm) -> bool:
         """Count ``steps`` joint steps done by compiled code and show each to the runner-level callback."""

@@ -37,7 +37,7 @@ def compiled_calls(monkeypatch):
     done = []
     run = sb3_sfgpi.compiled_steps.CompiledSteps.run
     monkeypatch.setattr(
-        sb3_sfgpi.compiled_steps.CompiledSteps, "run", lambda self, n: done.append(run(self, n)) or done[-1]
+        sb3_sfgpi.compiled_steps.CompiledSteps, "run", lambda self, *args: done.append(run(self, *args)) or done[-1]
     )
     monkeypatch.setattr(sb3_sfgpi.tabular.sparse, "INITIAL_CAPACITY", 16)  # tables grow between compiled batches
     return done
