@@ -114,6 +114,7 @@ def test_the_command_line_trains_a_deep_id_with_one_conditioned_learner_and_resu
     """Minecart (continuous observations): the deep preset's one ψ(s, a, w) for the run, its state kept for resume."""
     out = tmp_path / "minecart"
     short = ["--steps-per-iteration", "150", "--set", "n_test_weights=1", "--set", "value_episodes=1"]
+    short += ["--env", "max_episode_steps=100"]  # an idle cart's evaluation episodes end at 100 steps, not 1,000
     assert main(["train", "minecart-v0", "--iterations", "1", *short, "--out", str(out), "--no-progress"]) == 0
     config = json.loads((out / "run.json").read_text())
     assert config["policy"] == "ConditionedMlpPolicy" and config["learner_kwargs"]["exploration_steps"] == 50_000
