@@ -21,7 +21,7 @@ from torch import nn
 
 from sb3_sfgpi.common.action_masks import checked_masks, masked
 from sb3_sfgpi.common.observations import numeric_array
-from sb3_sfgpi.common.weights import validate_weights, weighted_sum
+from sb3_sfgpi.common.weights import validate_weight_rows, validate_weights, weighted_sum
 from sb3_sfgpi.stacking import Stacked, numpy_tables, stack_networks
 
 
@@ -119,7 +119,7 @@ class BatchedGPI(ABC):
         elif raw is None or raw.ndim != 2:
             raise ValueError(f"weights must have shape (batch, {self.reward_dim}), got {np.shape(w)}")
         else:
-            weights = np.array([validate_weights(row, self.reward_dim) for row in raw]).reshape(raw.shape)
+            weights = validate_weight_rows(raw, self.reward_dim)
         # float32 like the networks: Q = ψ · w is computed in single precision on every path.
         result = (weights, th.as_tensor(weights, dtype=th.float32, device=self.device), weights.astype(np.float32))
         self._weights_cache = (key, result)

@@ -8,12 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import random_tabular_network
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from momdp import Fig1MOMDP
 from queue_lights import QueueLights
 
 from sb3_sfgpi import MASFOLS, GPIPolicy, PadActions
 from sb3_sfgpi.common.rollouts import run_episodes, run_lockstep
-from sb3_sfgpi.common.weights import validate_weights
+from sb3_sfgpi.common.weights import validate_weight_rows, validate_weights
 from sb3_sfgpi.learners import default_learner_factory
 from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.validation import Scored, ValidationScorer
@@ -166,3 +168,24 @@ def test_validation_steps_its_weights_together_with_the_same_episodes_and_decisi
     smaller = random_lights_set.subset([0, 1])
     _same(alone.replayed(random_lights_set, alone(smaller)), together.replayed(random_lights_set, together(smaller)))
     assert together.rollouts == alone.rollouts > 6
+
+
+ROW = st.floats(0.0, 1e308, allow_nan=False, allow_subnormal=True)
+
+
+@settings(max_examples=200, deadline=None)
+@given(d=st.integers(1, 12), data=st.data())
+def test_weight_rows_validated_at_once_are_each_rows_validation_bit_for_bit(d, data):
+    """GPI's per-row weights are validated in one pass (every step of a validation's lockstep episodes): the same
+    normalised numbers as one row at a time, huge rows (whose sums overflow) included, and the same error."""
+    rows = np.array(data.draw(st.lists(st.lists(ROW, min_size=d, max_size=d), min_size=1, max_size=6)))
+    if (rows.max(axis=1) > 0).all():
+        expected = np.array([validate_weights(row, d) for row in rows])
+        assert validate_weight_rows(rows, d).tobytes() == expected.tobytes()
+    bad = rows.copy()
+    bad[-1, 0] = data.draw(st.sampled_from([-1.0, np.nan, np.inf]))
+    with pytest.raises(ValueError) as at_once:
+        validate_weight_rows(bad, d)
+    with pytest.raises(ValueError) as one_by_one:
+        [validate_weights(row, d) for row in bad]
+    assert str(at_once.value) == str(one_by_one.value)

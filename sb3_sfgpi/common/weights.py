@@ -64,6 +64,29 @@ def validate_weights(weights, reward_dim: int, name: str = "weights") -> np.ndar
     return w / w.sum()
 
 
+def validate_weight_rows(weights: np.ndarray, reward_dim: int) -> np.ndarray:
+    """
+    :func:`validate_weights` of every row of a ``(batch, reward_dim)`` array at once: the same checks, the same
+    normalised values bit for bit (each row's sum is numpy's sum of that row), the first bad row's error.
+
+    :return: float64 array of the same shape
+    :raises ValueError: as :func:`validate_weights`, for the first bad row
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    if w.ndim != 2 or w.shape[1] != reward_dim or not len(w):
+        return np.array([validate_weights(row, reward_dim) for row in w]).reshape(w.shape)
+    largest = w.max(axis=1)
+    if not (np.isfinite(w).all() and (w >= 0).all() and (largest > 0).all()):
+        return np.array([validate_weights(row, reward_dim) for row in w])  # raises for the first bad row
+    sums = w.sum(axis=1)
+    overflowing = ~np.isfinite(sums)
+    if overflowing.any():  # huge weights: into [0, 1] first, as their sum overflows
+        w = w.copy()
+        w[overflowing] /= largest[overflowing, None]
+        sums = w.sum(axis=1)
+    return w / sums[:, None]
+
+
 def weighted_sum(values: Array, weights: np.ndarray | th.Tensor) -> Array:
     """
     ``w · v`` over the last axis, the same bits on every machine: ``(v_0 w_0 + v_1 w_1) + v_2 w_2 + ...``.
