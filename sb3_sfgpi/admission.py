@@ -141,7 +141,7 @@ class Admission:
         """
         while len(policy_set) > 1:
             current, scorer = self._episodes(policy_set), self._started()
-            without = [scorer.without(policy_set, current, i) for i in range(len(policy_set))]
+            without = scorer.without_each(policy_set, current)
             scores = [s.score for s in without]
             worst = int(np.argmax(scores))
             if scores[worst] <= current.score:

@@ -198,16 +198,25 @@ class BatchedGPI(ABC):
         w: np.ndarray | Sequence[float],
         action_masks: np.ndarray | None = None,
         per_row: bool = False,
+        left_out: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """
         :meth:`predict_followed` with the members followed as a boolean matrix, shape ``(n_policies, batch)``: True
         where a member attains GPI's value of the action taken.
+
+        :param left_out: for each observation a member GPI acts without there (``-1``: none), or None: GPI over the
+            set without that member, as :meth:`~sb3_sfgpi.gpi.GPIPolicy.without` acts (each member's values are its
+            own; the member left out attains nothing)
         """
         weights = self._validated_weights(w, per_row=per_row)
         obs, _ = self._obs_to_array(observation)
         if per_row:
             _check_one_weight_per_row(weights[0], obs)
-        q = masked(self._policy_q(obs, weights), checked_masks(action_masks, len(obs), self.action_space.n))
+        q = self._policy_q(obs, weights)
+        if left_out is not None:
+            rows = np.flatnonzero(left_out >= 0)
+            q[left_out[rows], rows] = -np.inf
+        q = masked(q, checked_masks(action_masks, len(obs), self.action_space.n))
         best = q.max(axis=0)
         actions = best.argmax(axis=1)
         rows = np.arange(len(actions))

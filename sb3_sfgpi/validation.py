@@ -178,19 +178,53 @@ class ValidationScorer:
             runs[i] = run
         return self._scored(runs)
 
+    def without_each(self, policy_set: GPIPolicy, scored: Scored) -> list[Scored]:
+        """
+        :meth:`without` of every member of ``policy_set``, the weights at which any member was decisive rolled out
+        together in one lockstep where the runner can (each row acting by GPI without its member): the same scores.
+        """
+        again = [scored.decisive(member) for member in range(len(policy_set))]
+        pairs = [(member, i) for member, indices in enumerate(again) for i in indices]
+        together = None
+        if self.lockstep is not None and len(pairs) > 1:
+            together = self._together(policy_set, [i for _, i in pairs], [member for member, _ in pairs])
+        if together is None:
+            return [self.without(policy_set, scored, member) for member in range(len(policy_set))]
+        each = []
+        for member, indices in enumerate(again):
+            followed = tuple(_without(sets, member) for sets in scored.followed)
+            runs = list(zip(scored.returns, followed, scored.decisions, strict=True))
+            for i, (returns, sets, decided) in (
+                (i, run) for (m, i), run in zip(pairs, together, strict=True) if m == member
+            ):
+                runs[i] = (returns, _without(sets, member), decided)
+            each.append(
+                self._scored(runs) if indices else Scored(scored.score, scored.returns, followed, scored.decisions)
+            )
+        return each
+
     def _runs(self, policy_set: GPIPolicy, indices: list[int]) -> list[Run]:
         """The episodes of the weights ``indices``: together where the runner can, else one weight after another."""
         together = self._together(policy_set, indices) if self.lockstep is not None and len(indices) > 1 else None
         return together if together is not None else [self._episodes(policy_set, i) for i in indices]
 
-    def _together(self, policy_set: GPIPolicy, indices: list[int]) -> list[Run] | None:
-        """Every weight's episodes stepped together, each decision traced to its episode (None: the runner cannot)."""
+    def _together(
+        self, policy_set: GPIPolicy, indices: list[int], left_out: list[int] | None = None
+    ) -> list[Run] | None:
+        """
+        Every weight's episodes stepped together, each decision traced to its episode (None: the runner cannot).
+
+        :param left_out: for each weight of ``indices``, a member GPI acts without in its episodes (their members
+            followed in the set's indices, the member left out never among them), or None: the whole set
+        """
         n = self.episodes
         steps: list[tuple[Any, ...]] = []  # per decision step: observations, masks, actions, members followed, episodes
         last: list[Any] = []
 
-        def act(obs: np.ndarray, weights: np.ndarray, masks: np.ndarray | None, _: list[str]) -> np.ndarray:
-            actions, attaining = policy_set.predict_attaining(obs, weights, masks, per_row=True)
+        def act(obs: np.ndarray, rows: np.ndarray, masks: np.ndarray | None, _: list[str]) -> np.ndarray:
+            # each row's weights, then (with members left out) the member it acts without, as a last column
+            weights, without = (rows, None) if left_out is None else (rows[:, :-1], rows[:, -1].astype(np.int64))
+            actions, attaining = policy_set.predict_attaining(obs, weights, masks, per_row=True, left_out=without)
             last[:] = [obs, masks, actions, attaining]
             return actions
 
@@ -199,6 +233,8 @@ class ValidationScorer:
 
         seeds = [self.seeds[i] + episode for i in indices for episode in range(n)]
         weights = np.repeat(self.weights[indices], n, axis=0)
+        if left_out is not None:
+            weights = np.column_stack([weights, np.repeat(np.asarray(left_out, dtype=np.float64), n)])
         returns = self.lockstep(act, weights, seeds, n, decided)  # type: ignore[misc]
         if returns is None:
             return None

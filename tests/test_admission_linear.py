@@ -16,12 +16,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from momdp import N_ACTIONS, N_STATES, REWARD_DIM
 from parallel_chain import ParallelChainEnv
+from sfgpi_envs.four_room import FourRoomParallelEnv
 
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.presets import load_domain
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.multiagent import MultiAgentRunner
 from sb3_sfgpi.tabular.network import TabularSFNetwork
 from sb3_sfgpi.validation import Scored, ValidationScorer
 
@@ -219,3 +221,21 @@ def test_every_leave_one_out_score_on_four_room_is_that_of_full_rollouts(four_ro
         assert same(
             scorer.without(record, scored, member), scorer(record.subset(j for j in range(len(record)) if j != member))
         )
+
+
+def test_every_members_leave_one_out_episodes_stepped_together_are_those_of_one_member_at_a_time(four_room):
+    """Pruning rolls the decisive weights of every member out in one lockstep, each row acting by GPI without its
+    member: the same scores, returns, members followed and decisions as one member at a time without a lockstep."""
+    record, rollout = four_room
+    weights = Admission(6).weights(record.reward_dim, seed=3)
+    runner = MultiAgentRunner(FourRoomParallelEnv(observation_mode="own"), gamma=0.95)
+    together, alone = (
+        ValidationScorer(weights, rollout, 1, 3, lockstep=runner.lockstep),
+        ValidationScorer(weights, rollout, 1, 3),
+    )
+    scored = together(record)
+    assert same(scored, alone(record))
+    each = together.without_each(record, scored)
+    assert len(each) == len(record) and sum(len(scored.decisive(m)) > 0 for m in range(len(record))) >= 2
+    for member, without in enumerate(each):
+        assert same(without, alone.without(record, scored, member))
