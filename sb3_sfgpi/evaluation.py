@@ -2,7 +2,7 @@
 
 :class:`EvaluationConfig` says how GPI over Π is evaluated; :class:`TestEvaluation` runs it (in this process, with
 every weight's episodes in lockstep where it can, or as jobs in worker processes: :mod:`sb3_sfgpi.evaluation_jobs`)
-and :func:`summarize_test_episodes` gives its metrics.
+and :func:`summarize_test_episodes` gives its metrics (:func:`mean_return` the one validation compares).
 """
 
 from __future__ import annotations
@@ -43,25 +43,45 @@ def summarize_test_episodes(
         ``mean_return_undiscounted`` (the same with plain sums of rewards) and ``expected_utility`` (of the
         agents' mean return); and the JSON-compatible details, one entry per weight
     """
-    discounted, undiscounted, details = [], [], []
-    for w, result in zip(weights, results, strict=True):
-        agents = list(result.discounted)
-        discounted.append([result.mean_discounted(a) for a in agents])
-        undiscounted.append([result.mean_undiscounted(a) for a in agents])
-        per_agent = {
-            a: {"discounted": result.mean_discounted(a).tolist(), "undiscounted": result.mean_undiscounted(a).tolist()}
-            for a in agents
+    disc, undisc = _agents_means(results, discounted=True), _agents_means(results, discounted=False)
+    details = [
+        {
+            "weights": w.tolist(),
+            "agents": {
+                a: {"discounted": d.tolist(), "undiscounted": u.tolist()}
+                for a, d, u in zip(r.discounted, dw, uw, strict=True)
+            },
+            "final_infos": jsonable(r.final_infos),
         }
-        details.append({"weights": w.tolist(), "agents": per_agent, "final_infos": jsonable(result.final_infos)})
-    disc, undisc = np.array(discounted), np.array(undiscounted)  # (n_weights, n_agents, d)
-    d = weights.shape[1]
-    per_agent_w = np.repeat(weights[:, None, :], disc.shape[1], axis=1).reshape(-1, d)
+        for w, r, dw, uw in zip(weights, results, disc, undisc, strict=True)
+    ]
     metrics = {
-        "mean_return": expected_utility(per_agent_w, disc.reshape(-1, d)),
-        "mean_return_undiscounted": expected_utility(per_agent_w, undisc.reshape(-1, d)),
+        "mean_return": _mean_return(weights, disc),
+        "mean_return_undiscounted": _mean_return(weights, undisc),
         "expected_utility": expected_utility(weights, disc.mean(axis=1)),
     }
     return metrics, details
+
+
+def mean_return(weights: np.ndarray, results: Sequence[EpisodeReturns]) -> float:
+    """
+    ``mean_return`` of :func:`summarize_test_episodes` alone (what policy validation compares), without the details.
+    """
+    return _mean_return(weights, _agents_means(results, discounted=True))
+
+
+def _agents_means(results: Sequence[EpisodeReturns], discounted: bool) -> np.ndarray:
+    """Each weight's agents' mean (discounted) vector returns, shape ``(n_weights, n_agents, d)``."""
+    return np.array(
+        [[r.mean_discounted(a) if discounted else r.mean_undiscounted(a) for a in r.discounted] for r in results]
+    )
+
+
+def _mean_return(weights: np.ndarray, returns: np.ndarray) -> float:
+    """The mean over weights and agents of ``w · return``, from returns of shape ``(n_weights, n_agents, d)``."""
+    d = weights.shape[1]
+    per_agent_w = np.repeat(weights[:, None, :], returns.shape[1], axis=1).reshape(-1, d)
+    return expected_utility(per_agent_w, returns.reshape(-1, d))
 
 
 def gpi_score(
@@ -84,7 +104,7 @@ def gpi_score(
     returns = [
         rollout(policy_set.joint_policy(w), episodes, derive_seed(seed, purpose, i)) for i, w in enumerate(weights)
     ]
-    return summarize_test_episodes(weights, returns)[0]["mean_return"]
+    return mean_return(weights, returns)
 
 
 # --- GPI on the test weights after every iteration -------------------------------------------------------

@@ -22,7 +22,7 @@ import numpy as np
 
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.evaluation import Lockstep, Rollout, summarize_test_episodes
+from sb3_sfgpi.evaluation import Lockstep, Rollout, mean_return
 from sb3_sfgpi.gpi import Decisions, GPIPolicy
 from sb3_sfgpi.gpi_decisions import distinct_columns
 from sb3_sfgpi.tabular.network import TabularSFNetwork
@@ -259,5 +259,5 @@ class ValidationScorer:
 
     def _scored(self, runs: Sequence[Run]) -> Scored:
         returns = tuple(r for r, _, _ in runs)
-        score = summarize_test_episodes(self.weights, returns)[0]["mean_return"]
+        score = mean_return(self.weights, returns)
         return Scored(score, returns, tuple(f for _, f, _ in runs), tuple(d for _, _, d in runs))
