@@ -12,8 +12,10 @@ from hypothesis import strategies as st
 from sfgpi_envs.domains import four_room
 from sfgpi_envs.four_room import FourRoomParallelEnv
 from stable_baselines3.common.callbacks import BaseCallback
+from test_kernels import assert_no_fused_multiply_add
 
 import sb3_sfgpi.compiled_steps
+import sb3_sfgpi.tabular.joint_steps
 import sb3_sfgpi.tabular.sparse
 from sb3_sfgpi.masfols import MASFOLS
 
@@ -85,6 +87,13 @@ def test_compiled_steps_leave_what_the_step_by_step_path_leaves(compiled_calls, 
     step_by_step = trained(StepByStep, learner_kwargs, seed=3)
     for key in compiled:
         assert compiled[key] == step_by_step[key], key
+
+
+def test_the_compiled_joint_steps_have_no_fused_multiply_add(compiled_calls):
+    trained(FourRoomParallelEnv, {}, seed=0, steps=200)
+    assert compiled_calls and sb3_sfgpi.tabular.joint_steps._kernels
+    for kernel in sb3_sfgpi.tabular.joint_steps._kernels.values():
+        assert_no_fused_multiply_add(kernel)
 
 
 def test_a_users_callback_or_a_learners_callback_takes_the_step_by_step_path(compiled_calls):

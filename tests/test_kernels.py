@@ -12,6 +12,7 @@ import torch as th
 from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numba import njit
 
 from sb3_sfgpi.common.action_masks import masked
 from sb3_sfgpi.common.buffers import MOReplayBuffer
@@ -154,17 +155,27 @@ def test_the_compiled_read_takes_one_weight_vector():
 
 
 @pytest.mark.parametrize(
-    "kernel", ["sampled_td_update", "greedy_action", "table_row", "action_values", "epsilon_greedy"]
+    "kernel", ["sampled_td_update", "greedy_action", "table_row", "action_values", "epsilon_greedy", "planning_sweeps"]
 )
 def test_the_compiled_kernels_have_no_fused_multiply_add(kernel):
     compiled = getattr(kernels, kernel)
     if not compiled.signatures:  # compiled on first use: use it once
         policy, space = learner(OBSERVATION_SPACES[0], 0, False, 0.1), OBSERVATION_SPACES[0]
-        policy.td_update(filled_buffer(space, 0, 1, False, False), 32, 0.9, 10.0)
+        buffer = filled_buffer(space, 0, 1, False, False)
+        policy.td_update(buffer, 32, 0.9, 10.0)
         policy.q_values(np.array([0, 1]), policy.weights.numpy())
         policy.masked_actions(np.array([0, 1]), policy.weights.numpy(), None, 0.0)
-    for assembly in compiled.inspect_asm().values():
-        assert "fma" not in assembly.lower()
+        policy.plan(buffer, 0.9, 2)
+    assert_no_fused_multiply_add(compiled)
+
+
+def assert_no_fused_multiply_add(compiled) -> None:
+    """No FMA in the machine code of any signature of a compiled function, compiled afresh (numba shows no machine
+    code for a function it loaded from its cache)."""
+    assert compiled.signatures
+    for signature in compiled.signatures:
+        assembly = njit(signature, cache=False)(compiled.py_func).inspect_asm(signature)
+        assert len(assembly) > 1_000 and "fma" not in assembly.lower()
 
 
 @settings(max_examples=40, deadline=None)

@@ -310,3 +310,73 @@ def _add_td_errors(
                 return False
             psi[slot, action, k] = value
     return True
+
+
+@njit(cache=True, nogil=True)
+def planning_sweeps(
+    psi: np.ndarray,
+    weights: np.ndarray,
+    n_actions: int,
+    own: np.ndarray,
+    following_state: np.ndarray,
+    pair: np.ndarray,
+    summed: bool,
+    scale: np.ndarray,
+    expected_reward: np.ndarray,
+    max_sweeps: int,
+    tolerance: float,
+) -> int:
+    """
+    :meth:`EmpiricalModel.sweep <sb3_sfgpi.tabular.planning.EmpiricalModel.sweep>`'s Jacobi sweeps on its copy of the
+    rows, in place, with numpy's arithmetic in numpy's order: each state's greedy action by ``w · ψ`` (the first of
+    the largest, the first NaN where there is one), each outcome's ``r̄ P̂ + (γ (1 − d̄) P̂) ψ(s', a*)`` in float64,
+    summed over a pair's outcomes from 0 in their order where ``summed`` (as ``np.bincount``), the largest change,
+    and the rows written back in ψ's precision.
+
+    :param psi: the rows, one per state and action, shape ``(states * n_actions, d)``, updated
+    :param own: each recorded pair's row; ``following_state``: each outcome's next state; ``pair``: its pair
+    :param scale: ``γ (1 − d̄) P̂`` of each outcome, float64; ``expected_reward``: ``r̄ P̂``, shape ``(outcomes, d)``
+    :return: the number of sweeps done
+    """
+    n_states, d = psi.shape[0] // n_actions, psi.shape[1]
+    greedy = np.empty(n_states, dtype=np.int64)
+    backed_up = np.empty((own.shape[0], d), dtype=np.float64)
+    sweeps = 0
+    while sweeps < max_sweeps:
+        sweeps += 1
+        for s in range(n_states):
+            greedy[s] = s * n_actions + _first_argmax(psi, s * n_actions, n_actions, weights)
+        if summed:
+            backed_up[:] = 0.0
+        for o in range(following_state.shape[0]):
+            row, target = greedy[following_state[o]], pair[o]
+            for k in range(d):
+                value = expected_reward[o, k] + scale[o] * np.float64(psi[row, k])
+                backed_up[target, k] = backed_up[target, k] + value if summed else value
+        change, unsettled = 0.0, False
+        for p in range(own.shape[0]):
+            for k in range(d):
+                moved = abs(np.float64(psi[own[p], k]) - backed_up[p, k])
+                unsettled |= np.isnan(moved)
+                change = max(change, moved)
+        for p in range(own.shape[0]):
+            for k in range(d):
+                psi[own[p], k] = backed_up[p, k]
+        if not unsettled and change <= tolerance:
+            break
+    return sweeps
+
+
+@njit(cache=True, nogil=True)
+def _first_argmax(psi: np.ndarray, first: int, n_actions: int, weights: np.ndarray) -> int:
+    """numpy's ``argmax`` of ``w · ψ`` over a state's actions (rows ``first`` on): the first largest, or first NaN."""
+    best, best_action = weighted_value(psi[first], weights), 0
+    if np.isnan(best):
+        return 0
+    for a in range(1, n_actions):
+        q = weighted_value(psi[first + a], weights)
+        if np.isnan(q):
+            return a
+        if q > best:
+            best, best_action = q, a
+    return best_action

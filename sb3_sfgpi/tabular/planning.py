@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.tabular.kernels import planning_sweeps
 from sb3_sfgpi.tabular.sparse import SparseTable
 
 #: Sweeps stop once no entry of ψ moves by more than this.
@@ -81,29 +81,15 @@ class EmpiricalModel:
         psi = entries[rows].astype(dtype, copy=False)
         own = local_state[:n_pairs] * n_actions + self.entries % n_actions
         following_state = local_state[n_pairs:]
-        first = np.arange(len(states)) * n_actions
-        scale = (gamma * self.continues * self.probability)[:, None]
+        scale = gamma * self.continues * self.probability
         expected_reward = self.reward * self.probability[:, None]
-        one_outcome_each = len(self.pair) == n_pairs  # a deterministic environment: no sums
-        sweeps = 0
-        while sweeps < max_sweeps:
-            sweeps += 1
-            greedy = first + weighted_sum(psi.reshape(len(states), n_actions, -1), weights).argmax(axis=1)
-            contributions = expected_reward + scale * np.take(psi, greedy[following_state], axis=0)
-            backed_up = contributions if one_outcome_each else self._summed_by_pair(contributions)
-            change = np.abs(np.take(psi, own, axis=0) - backed_up).max(initial=0.0)
-            psi[own] = backed_up
-            if change <= TOLERANCE:
-                break
+        summed = len(self.pair) != n_pairs  # a deterministic environment (one outcome a pair): no sums
+        sweeps = planning_sweeps(
+            psi, np.asarray(weights, dtype=psi.dtype), n_actions, own,
+            following_state, self.pair, summed, scale, expected_reward, max_sweeps, TOLERANCE,
+        )  # fmt: skip
         entries[rows] = psi
         return sweeps
-
-    def _summed_by_pair(self, values: np.ndarray) -> np.ndarray:
-        """The sums of ``values`` (one row per outcome) over each pair's outcomes, added in their order."""
-        return np.stack(
-            [np.bincount(self.pair, weights=values[:, i], minlength=len(self.entries)) for i in range(values.shape[1])],
-            axis=1,
-        )
 
 
 @dataclass(frozen=True)
