@@ -107,9 +107,9 @@ def local_ray():
 
 @pytest.mark.parametrize("shared_filesystem", [True, False])
 def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(tmp_path, local_ray, shared_filesystem):
-    # iterations of 3,000 steps: the kill lands while the target still has about a second of work left (with TINY's
-    # 600 its last two iterations took 0.4 s, and a busy machine could let it finish before the kill)
-    long_enough = [*TINY, "--iterations", "3", "--steps-per-iteration", "3000"]
+    # iterations of 20,000 steps: the kill lands while the target still has about a second of work left (Four-Room's
+    # compiled joint steps run 3,000 in a few hundredths of a second: a run of those could finish before the kill)
+    long_enough = [*TINY, "--iterations", "3", "--steps-per-iteration", "20000"]
     specs = grid(["four-room"], ["ma-sfols", "random"], [0], options=long_enough)
     target = specs[0]
     uninterrupted = train_run(target, tmp_path / "uninterrupted")  # the same run in this process, never killed
