@@ -57,6 +57,8 @@ def compiled_steps(
         return None
     if not all(_plain_table_learner(learners[agent], callbacks[agent]) for agent in learners):
         return None
+    if len({id(learner.action_space.np_random) for learner in learners.values()}) < len(learners):
+        return None  # agents exploring from one generator: the kernel draws from a copy per learner
     from sb3_sfgpi.tabular.joint_steps import PACKED_STEP_SIGNATURE
     from sb3_sfgpi.tabular.numpy_random import global_stream
 

@@ -96,6 +96,19 @@ def test_the_compiled_joint_steps_have_no_fused_multiply_add(compiled_calls):
         assert_no_fused_multiply_add(kernel)
 
 
+class OneActionSpace(FourRoomParallelEnv):
+    """Four-Room whose agents share one action space (one generator for both learners' exploration)."""
+
+    def action_space(self, agent: str):
+        return self.action_spaces["agent_0"]
+
+
+def test_learners_exploring_from_one_generator_take_the_step_by_step_path(compiled_calls):
+    shared = trained(OneActionSpace, {}, seed=2, steps=300)
+    assert compiled_calls == []
+    assert shared == trained(type("StepByStepOneSpace", (OneActionSpace,), {"packed_dynamics": None}), {}, 2, steps=300)
+
+
 def test_a_users_callback_or_a_learners_callback_takes_the_step_by_step_path(compiled_calls):
     trained(FourRoomParallelEnv, {}, seed=0, callback=Stop(), steps=200)
     assert compiled_calls == []
