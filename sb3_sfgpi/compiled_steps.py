@@ -196,7 +196,16 @@ class CompiledSteps:
 
     def _give_back(self, agent: str, arrays: LearnerArrays, steps: int) -> None:
         """What ``steps`` steps of SB3's machinery leave a learner, from the kernel's arrays."""
-        from sb3_sfgpi.tabular.joint_steps import FULL, LAST_TRAIN, N_CALLS, N_UPDATES, NUM_TIMESTEPS, POS, STORED
+        from sb3_sfgpi.tabular.joint_steps import (
+            EXPLORATION_RATE,
+            FULL,
+            LAST_TRAIN,
+            N_CALLS,
+            N_UPDATES,
+            NUM_TIMESTEPS,
+            POS,
+            STORED,
+        )
         from sb3_sfgpi.tabular.numpy_random import set_pcg64_words
 
         learner, counters = self.learners[agent], arrays.counters
@@ -207,7 +216,7 @@ class CompiledSteps:
         learner.num_timesteps, learner._n_calls = int(counters[NUM_TIMESTEPS]), int(counters[N_CALLS])
         learner.replay_buffer.pos, learner.replay_buffer.full = int(counters[POS]), bool(counters[FULL])
         learner._last_obs = arrays.last_obs.reshape(1, -1)  # type: ignore[assignment]
-        learner.exploration_rate = float(arrays.rates[0])
+        learner.exploration_rate = float(arrays.rates[EXPLORATION_RATE])
         self.monitor.add_steps(0, agent, arrays.episode_return, steps)
         callback = self.callbacks[agent]
         callback.n_calls += steps

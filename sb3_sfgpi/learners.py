@@ -75,18 +75,22 @@ class EpisodeMonitor:
 
     def episode(self, copy: int, agent: str) -> tuple[np.ndarray, int]:
         """The vector return and length of an agent's episode so far (zero where it has just started)."""
-        episode = self._episodes.setdefault((copy, agent), [np.zeros(self.reward_dim), 0])
+        episode = self._entry((copy, agent))
         return episode[0], episode[1]
 
     def add_steps(self, copy: int, agent: str, episode_return: np.ndarray, steps: int) -> None:
         """Record ``steps`` more steps of an agent's episode, which brought its return to ``episode_return``."""
-        episode = self._episodes.setdefault((copy, agent), [np.zeros(self.reward_dim), 0])
+        episode = self._entry((copy, agent))
         episode[0], episode[1] = episode_return, episode[1] + steps
+
+    def _entry(self, key: tuple[int, str]) -> list:
+        """The ``[vector return, length]`` of the episode of ``key`` (``(copy, agent)``), started if there is none."""
+        return self._episodes.setdefault(key, [np.zeros(self.reward_dim), 0])
 
     def info(self, key: tuple[int, str], step: Transitions) -> dict[str, Any]:
         """The info of ``key`` (``(copy, agent)``), with the episode's vector return where it ended."""
         info = step.infos[key]
-        episode = self._episodes.setdefault(key, [np.zeros(self.reward_dim), 0])
+        episode = self._entry(key)
         episode[0] = episode[0] + step.rewards[key]
         episode[1] += 1
         if step.terminations[key] or step.truncations[key]:

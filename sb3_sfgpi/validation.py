@@ -30,6 +30,8 @@ from sb3_sfgpi.tabular.network import TabularSFNetwork
 #: One weight's decisions, every agent, decision and episode in order: observations, action masks (None: the env
 #: gives none), actions.
 Decided = tuple[np.ndarray, np.ndarray | None, np.ndarray]
+#: The decisions of a weight whose episodes ended at reset: none.
+NO_DECISIONS: Decided = (np.empty((0,)), None, np.empty((0,), dtype=np.int64))
 #: One weight's episodes: the returns, the members followed, and the decisions.
 Run = tuple[EpisodeReturns, frozenset[frozenset[int]], Decided]
 
@@ -86,7 +88,7 @@ def _runs_decisions(
         ``(n_policies, rows)``) and each row's episode
     """
     if not steps:  # no decision (episodes that end at reset)
-        return [(frozenset(), (np.empty((0,)), None, np.empty((0,), dtype=np.int64)))] * n_runs
+        return [(frozenset(), NO_DECISIONS)] * n_runs
     observations, actions = np.concatenate([s[0] for s in steps]), np.concatenate([s[2] for s in steps])
     masks = _masks_of([Decisions(s[0], s[1], s[2], []) for s in steps], n_actions)
     patterns, pattern_of = distinct_columns(np.concatenate([s[3] for s in steps], axis=1))
@@ -96,10 +98,10 @@ def _runs_decisions(
     runs = []
     for start, stop in zip(bounds[:-1], bounds[1:], strict=True):
         rows = order[start:stop]
-        followed = frozenset(patterns[i] for i in np.unique(pattern_of[rows]).tolist())
         if not len(rows):
-            runs.append((followed, (np.empty((0,)), None, np.empty((0,), dtype=np.int64))))
+            runs.append((frozenset(), NO_DECISIONS))
             continue
+        followed = frozenset(patterns[i] for i in np.unique(pattern_of[rows]).tolist())
         runs.append((followed, (observations[rows], None if masks is None else masks[rows], actions[rows])))
     return runs
 
@@ -170,38 +172,37 @@ class ValidationScorer:
         at which the member was decisive (:meth:`Scored.decisive`) are rolled out again.
         """
         again = scored.decisive(member)
-        followed = tuple(_without(sets, member) for sets in scored.followed)
-        runs = list(zip(scored.returns, followed, scored.decisions, strict=True))
-        if not again:
-            return Scored(scored.score, scored.returns, followed, scored.decisions)
-        for i, run in zip(again, self._runs(policy_set.without(member), again), strict=True):
-            runs[i] = run
-        return self._scored(runs)
+        rolled = self._runs(policy_set.without(member), again) if again else []
+        return self._replaced(scored, member, dict(zip(again, rolled, strict=True)))
 
     def without_each(self, policy_set: GPIPolicy, scored: Scored) -> list[Scored]:
         """
         :meth:`without` of every member of ``policy_set``, the weights at which any member was decisive rolled out
         together in one lockstep where the runner can (each row acting by GPI without its member): the same scores.
         """
-        again = [scored.decisive(member) for member in range(len(policy_set))]
-        pairs = [(member, i) for member, indices in enumerate(again) for i in indices]
+        pairs = [(member, i) for member in range(len(policy_set)) for i in scored.decisive(member)]
         together = None
         if self.lockstep is not None and len(pairs) > 1:
             together = self._together(policy_set, [i for _, i in pairs], [member for member, _ in pairs])
         if together is None:
             return [self.without(policy_set, scored, member) for member in range(len(policy_set))]
-        each = []
-        for member, indices in enumerate(again):
-            followed = tuple(_without(sets, member) for sets in scored.followed)
-            runs = list(zip(scored.returns, followed, scored.decisions, strict=True))
-            for i, (returns, sets, decided) in (
-                (i, run) for (m, i), run in zip(pairs, together, strict=True) if m == member
-            ):
-                runs[i] = (returns, _without(sets, member), decided)
-            each.append(
-                self._scored(runs) if indices else Scored(scored.score, scored.returns, followed, scored.decisions)
-            )
-        return each
+        rolled: list[dict[int, Run]] = [{} for _ in range(len(policy_set))]
+        for (member, i), (returns, followed, decided) in zip(pairs, together, strict=True):
+            rolled[member][i] = (returns, _without(followed, member), decided)  # in the indices of the set without it
+        return [self._replaced(scored, member, runs) for member, runs in enumerate(rolled)]
+
+    def _replaced(self, scored: Scored, member: int, rolled: dict[int, Run]) -> Scored:
+        """
+        ``scored`` without ``member``: its members followed in the indices of the set without it, and the runs of the
+        weights in ``rolled`` (those at which the member was decisive, rolled out again) in place of its own.
+        """
+        followed = tuple(_without(sets, member) for sets in scored.followed)
+        if not rolled:
+            return Scored(scored.score, scored.returns, followed, scored.decisions)
+        runs = list(zip(scored.returns, followed, scored.decisions, strict=True))
+        for i, run in rolled.items():
+            runs[i] = run
+        return self._scored(runs)
 
     def _runs(self, policy_set: GPIPolicy, indices: list[int]) -> list[Run]:
         """The episodes of the weights ``indices``: together where the runner can, else one weight after another."""
@@ -251,7 +252,7 @@ class ValidationScorer:
     def _run(self, returns: EpisodeReturns, trace: list[Decisions], policy_set: GPIPolicy) -> Run:
         """One weight's run from its episodes' returns and decisions."""
         if not trace:  # no decision (episodes that end at reset)
-            return returns, frozenset(), (np.empty((0,)), None, np.empty((0,), dtype=np.int64))
+            return returns, frozenset(), NO_DECISIONS
         observations = np.concatenate([step.observations for step in trace])
         actions = np.concatenate([step.actions for step in trace])
         followed = frozenset(m for step in trace for m in step.followed)

@@ -73,16 +73,14 @@ def validate_weight_rows(weights: np.ndarray, reward_dim: int) -> np.ndarray:
     :raises ValueError: as :func:`validate_weights`, for the first bad row
     """
     w = np.asarray(weights, dtype=np.float64)
-    if w.ndim != 2 or w.shape[1] != reward_dim or not len(w):
-        return np.array([validate_weights(row, reward_dim) for row in w]).reshape(w.shape)
-    largest = w.max(axis=1)
-    if not (np.isfinite(w).all() and (w >= 0).all() and (largest > 0).all()):
-        return np.array([validate_weights(row, reward_dim) for row in w])  # raises for the first bad row
+    rows_fit = w.ndim == 2 and w.shape[1] == reward_dim and len(w) > 0
+    if not (rows_fit and np.isfinite(w).all() and (w >= 0).all() and (w.max(axis=1) > 0).all()):
+        return np.array([validate_weights(row, reward_dim) for row in w]).reshape(w.shape)  # the first bad row raises
     sums = w.sum(axis=1)
     overflowing = ~np.isfinite(sums)
     if overflowing.any():  # huge weights: into [0, 1] first, as their sum overflows
         w = w.copy()
-        w[overflowing] /= largest[overflowing, None]
+        w[overflowing] /= w[overflowing].max(axis=1, keepdims=True)
         sums = w.sum(axis=1)
     return w / sums[:, None]
 

@@ -8,7 +8,8 @@ space's PCG64), the env's step (an env's packed step, :data:`PACKED_STEP_SIGNATU
 function), and each learner's transition stored, its exploration rate moved on and its TD update
 (:func:`~sb3_sfgpi.tabular.kernels.sampled_td_update`), in the order the runner does them, with the same draws, so
 the tables, buffers and generators end as the step-by-step path leaves them. It stops where Python must act
-(:data:`STOPS`); :mod:`sb3_sfgpi.compiled_steps` hands the learners their arrays and takes their state back.
+(:data:`EPISODE_ENDS`, :data:`PLANNING_DUE`, :data:`TABLE_FULL`, :data:`UPDATE_DIVERGED`; :data:`DONE` where its steps
+are done); :mod:`sb3_sfgpi.compiled_steps` hands the learners their arrays and takes their state back.
 """
 
 from __future__ import annotations
@@ -33,7 +34,6 @@ PACKED_STEP_SIGNATURE = types.int64(
 #: the env not stepped: Python steps it); a learner plans at the next step; a table needs room for a minibatch's
 #: rows; a TD update diverged.
 DONE, EPISODE_ENDS, PLANNING_DUE, TABLE_FULL, UPDATE_DIVERGED = range(5)
-STOPS = ("done", "episode ends", "planning due", "table full", "update diverged")
 
 #: The learner's counters (:attr:`LearnerArrays.counters`), updated by the kernel.
 NUM_TIMESTEPS, N_CALLS, N_UPDATES, POS, FULL, STORED, LAST_TRAIN = range(7)
@@ -96,7 +96,8 @@ def _run_joint_steps(
     :param actions: written: the agents' last actions (those of the step that ends an episode, where one does)
     :param observations: scratch for the env's observations, ``(agents, obs_size)``
     :param rewards: scratch for its rewards, ``(agents, d)``
-    :return: why it stopped (:data:`STOPS`) and the joint steps done (where an update diverged: its learner's index)
+    :return: why it stopped (:data:`DONE`, :data:`EPISODE_ENDS`, ...) and the joint steps done (where an update
+        diverged: its learner's index)
     """
     values = np.empty((1, learners[0].psi.shape[1]), dtype=np.float32)
     chosen = np.empty(1, dtype=np.int64)
