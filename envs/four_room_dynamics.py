@@ -65,7 +65,8 @@ def advance(
             cells[e, i] = cell
             terminated[e, i] = cell == goal_cell
             if terminated[e, i]:
-                rewards[e, i, :] = goal_reward
+                for j in range(goal_reward.shape[0]):  # no array assignment: its shape check is seconds of compiling
+                    rewards[e, i, j] = goal_reward[j]
                 continue
             k = object_at[cell]
             if k >= 0 and present[e, k]:

@@ -12,14 +12,17 @@ import torch as th
 from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from llvmlite import binding as llvm
 from numba import njit
 
 from sb3_sfgpi.common.action_masks import masked
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
 from sb3_sfgpi.tabular import kernels
+from sb3_sfgpi.tabular.numpy_random import global_stream
 
 OBSERVATION_SPACES = [spaces.Discrete(7, start=-2), spaces.MultiDiscrete([3, 4], start=[1, -1]), spaces.MultiBinary(3)]
 
@@ -170,12 +173,53 @@ def test_the_compiled_kernels_have_no_fused_multiply_add(kernel):
 
 
 def assert_no_fused_multiply_add(compiled) -> None:
-    """No FMA in the machine code of any signature of a compiled function, compiled afresh (numba shows no machine
-    code for a function it loaded from its cache)."""
+    """No FMA in the machine code of any signature of a compiled function: the code this process compiled, or where
+    it loaded the function from numba's cache (which keeps no machine code to show), the function compiled afresh."""
     assert compiled.signatures
     for signature in compiled.signatures:
-        assembly = njit(signature, cache=False)(compiled.py_func).inspect_asm(signature)
+        assembly = compiled.inspect_asm(signature)
+        if len(assembly) < 1_000:  # a line saying the code came from the cache
+            assembly = njit(signature, cache=False)(compiled.py_func).inspect_asm(signature)
         assert len(assembly) > 1_000 and "fma" not in assembly.lower()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    values=st.lists(
+        st.lists(st.sampled_from([0.0, -0.0, 1.0, 2.0, np.inf, -np.inf, np.nan]), min_size=1, max_size=5),
+        min_size=1,
+        max_size=4,
+    ),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_compiled_ties_are_broken_as_numpy_breaks_them(values, seed):
+    """The compiled greedy choice, ties broken on numpy's global generator, is ``argmax_random_ties``'s: the same
+    actions and draws, with NaN, infinities and signed zeros among the values."""
+    width = max(len(row) for row in values)
+    q = np.array([(row * width)[:width] for row in values], dtype=np.float32)
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    expected, after = argmax_random_ties(q), np.random.get_state()
+    np.random.seed(seed)
+    actions = np.empty(len(q), dtype=np.int64)
+    kernels._greedy_random_ties(q, *global_stream(), actions)
+    state = np.random.get_state()
+    np.random.set_state(saved)
+    np.testing.assert_array_equal(actions, expected)
+    assert state[2] == after[2] and np.array_equal(state[1], after[1])
+
+
+def _multiply_add(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> None:
+    for i in range(len(a)):
+        c[i] = a[i] * b[i] + c[i]
+
+
+@pytest.mark.skipif("fma" not in llvm.get_host_cpu_features().flatten(), reason="this CPU has no FMA instruction")
+def test_the_fused_multiply_add_check_finds_one_where_fast_math_allows_it():
+    signature = "void(float64[::1], float64[::1], float64[::1])"
+    assert_no_fused_multiply_add(njit(signature, cache=False)(_multiply_add))
+    with pytest.raises(AssertionError):
+        assert_no_fused_multiply_add(njit(signature, cache=False, fastmath=True)(_multiply_add))
 
 
 @settings(max_examples=40, deadline=None)

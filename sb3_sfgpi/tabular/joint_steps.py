@@ -169,15 +169,15 @@ def _learner_step(
     counters, settings = learner.counters, learner.settings
     observations, next_observations, stored_actions, stored_rewards, dones, timeouts, _ = learner.storage
     pos = counters[POS]
-    observations[pos, :] = learner.last_obs
-    next_observations[pos, :] = observation
+    _copy(observations[pos], learner.last_obs)
+    _copy(next_observations[pos], observation)
     stored_actions[pos] = action
-    stored_rewards[pos, :] = reward
+    _copy(stored_rewards[pos], reward)
     dones[pos], timeouts[pos] = 0.0, 0.0
     if pos + 1 >= settings[BUFFER_SIZE]:
         counters[FULL] = 1
     counters[POS] = (pos + 1) % settings[BUFFER_SIZE]
-    learner.last_obs[:] = observation
+    _copy(learner.last_obs, observation)
     for k in range(reward.shape[0]):
         learner.episode_return[k] += np.float64(reward[k])
     counters[NUM_TIMESTEPS] += 1
@@ -218,19 +218,37 @@ def _td_update(learner: LearnerArrays, lr: np.float32, key: np.ndarray, position
 @njit(cache=True, nogil=True)
 def _store_rows(learner: LearnerArrays, rows: np.ndarray) -> None:
     """:meth:`~sb3_sfgpi.tabular.sparse.SparseTable.store` of ``rows`` with room for them: new rows sorted, default."""
-    missing = np.empty(rows.shape[0], dtype=np.int64)
+    missing = np.empty(rows.shape[0], dtype=np.int64)  # the rows not stored, sorted, each once
     n = 0
     for i in range(rows.shape[0]):
-        if learner.slot_map[rows[i]] < 0:
-            missing[n] = rows[i]
-            n += 1
+        row = rows[i]
+        j = n
+        while j > 0 and missing[j - 1] > row:
+            j -= 1
+        if learner.slot_map[row] >= 0 or (j > 0 and missing[j - 1] == row):
+            continue
+        for m in range(n, j, -1):
+            missing[m] = missing[m - 1]
+        missing[j] = row
+        n += 1
     count = learner.counters[STORED]
-    for row in np.unique(missing[:n]):
-        learner.psi[count] = learner.psi[-1]
-        learner.stored_rows[count] = row
-        learner.slot_map[row] = count
+    for i in range(n):
+        for a in range(learner.psi.shape[1]):
+            _copy(learner.psi[count, a], learner.psi[-1, a])
+        learner.stored_rows[count] = missing[i]
+        learner.slot_map[missing[i]] = count
         count += 1
     learner.counters[STORED] = count
+
+
+@njit(cache=True, nogil=True)
+def _copy(target: np.ndarray, source: np.ndarray) -> None:
+    """
+    ``target[:] = source`` for 1-D arrays of one length, element by element: numba compiles an array assignment
+    with a shape check whose error message alone takes seconds to compile on a machine's first run.
+    """
+    for i in range(source.shape[0]):
+        target[i] = source[i]
 
 
 _kernels: dict[Any, Any] = {}

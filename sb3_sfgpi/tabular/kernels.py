@@ -129,7 +129,10 @@ def _greedy_random_ties(values: np.ndarray, key: np.ndarray, position: np.ndarra
     best = np.empty(n, dtype=values.dtype)
     n_best = 0
     for i in range(n):
-        best[i] = values[i].max()  # NaN where a value is NaN, as numpy's
+        best[i] = values[i, 0]  # the row's maximum, NaN where a value is NaN, as numpy's (a loop: no reduction's
+        for a in range(1, n_actions):  # error message to compile)
+            if not np.isnan(best[i]) and (np.isnan(values[i, a]) or values[i, a] > best[i]):
+                best[i] = values[i, a]
         for a in range(n_actions):
             if values[i, a] == best[i]:
                 n_best += 1
