@@ -222,10 +222,12 @@ def _store_rows(learner: LearnerArrays, rows: np.ndarray) -> None:
     n = 0
     for i in range(rows.shape[0]):
         row = rows[i]
+        if learner.slot_map[row] >= 0:
+            continue
         j = n
         while j > 0 and missing[j - 1] > row:
             j -= 1
-        if learner.slot_map[row] >= 0 or (j > 0 and missing[j - 1] == row):
+        if j > 0 and missing[j - 1] == row:
             continue
         for m in range(n, j, -1):
             missing[m] = missing[m - 1]
