@@ -11,7 +11,6 @@ and what is written where the :class:`~sb3_sfgpi.run_directory.RunDirectory`'s b
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,7 +24,7 @@ from tqdm.auto import tqdm
 from sb3_sfgpi.admission import Admission, Candidate
 from sb3_sfgpi.common.metrics import hypervolume
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.common.weights import random_weights, validate_weights
+from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
@@ -33,7 +32,6 @@ from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.run_policy_set import commit_policy_set, load_policy_set, stage_policy_set, staged_digest
 from sb3_sfgpi.run_settings import VALUE_MODES, RunSettings
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
-from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 from sb3_sfgpi.sfdqn.training_state import training_state
 from sb3_sfgpi.tabular.network import TabularSFNetwork
 from sb3_sfgpi.tabular.pooling import PooledReplay
@@ -193,7 +191,6 @@ class OLSCallback(BaseCallback):
         """Algorithm 1, lines 16-30: values, OLS and Π; then GPI evaluated, the checkpoint and the next weights."""
         self.model.end_iteration()  # line 15: the agents learned their policies and SFs
         self._pool_replay()  # with pooled replay: every policy's SFs planned on all that was seen so far
-        self._follow_conditioned()  # learners conditioned on w: their members of Π take their latest SFs
         candidates = [
             Candidate(self.model.learners[name], value, name)
             for name, value in self._estimate_values().items()  # lines 17-19: V^π of each agent's new policy
@@ -223,44 +220,14 @@ class OLSCallback(BaseCallback):
         self.record.networks_changed()
         self.admission.forget()  # Π's SFs changed, and with them GPI's score over Π
 
-    def _follow_conditioned(self) -> None:
-        """
-        Where learners are conditioned on the weights (one network for every weight, trained on): the members of Π
-        they made take their latest network, and the values of those members are estimated again and recorded (OLS
-        sees what each weight's policy returns now, and may find new corner weights).
-        """
-        learners = self.model.conditioned_learners
-        if not learners:
-            return
-        seed, episodes = derive_seed(self.model.seed, "revalue", self.iteration), self.values.episodes
-        members = [i for i, info in enumerate(self.record.infos) if info.agent in learners]
-        for i in members:
-            learner = learners[self.record.infos[i].agent]  # type: ignore[index]
-            cast(ConditionedSFNetwork, self.record.networks[i]).follow(learner.policy.sf_net)
-        weights = np.array([validate_weights(self.record.infos[i].weights, self.model.reward_dim) for i in members])
-        seeds = [seed + episode for _ in members for episode in range(episodes)]
-        together = self.model.lockstep(self.model.learner_rows, np.repeat(weights, episodes, axis=0), seeds, episodes)
-        for k, i in enumerate(members):
-            info = self.record.infos[i]
-            returns = (
-                together[k]
-                if together is not None
-                else self.model.rollout(self.model.learner_policy(w=info.weights), episodes, seed)
-            )
-            value = returns.mean_discounted_over(self.model.groups[info.agent])  # type: ignore[index]
-            self.record.infos[i] = dataclasses.replace(info, value=value)
-            self.schedule.add(value, info.weights)
-        self.record.networks_changed()
-        self.admission.forget()  # Π's SFs changed, and with them GPI's score over Π
-
     def _next_weights(self) -> AgentWeights | None:
         """
         The next weights from the schedule (top of the OLS queue, Dirichlet(1) beyond it), None when it ended.
 
         Learners conditioned on the weights are still learning every weight when OLS's queue empties (on minecart,
         every extremum's first value is the same cart that brings no ore: one CCS point, no corner left): a run with
-        ``max_iterations`` then spends its budget on Dirichlet(1) weights, and the values estimated again after
-        every iteration can queue corner weights again.
+        ``max_iterations`` then spends its budget on Dirichlet(1) weights, whose new values can queue corner weights
+        again.
         """
         rng = np.random.default_rng(derive_seed(self.model.seed, "random-weights", self.iteration))
         weights = self.schedule.next_weights(self.model.learner_names, rng)

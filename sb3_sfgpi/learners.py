@@ -17,7 +17,6 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_sfgpi.common.action_masks import masked
 from sb3_sfgpi.common.agent_views import Rows, Transitions, folderless_logger, remove_interrupted_logs, replaced
 from sb3_sfgpi.common.rollouts import JointPolicy
 from sb3_sfgpi.sfdqn import SFDQN
@@ -188,16 +187,12 @@ def end_learning(learner: SFDQN, callback: BaseCallback) -> None:
         learner.dump_logs()
 
 
-def greedy_joint_policy(
-    learners: Mapping[str, SFDQN], learner_of: Mapping[str, str] | None, w: np.ndarray | None
-) -> JointPolicy:
+def greedy_joint_policy(learners: Mapping[str, SFDQN], learner_of: Mapping[str, str] | None) -> JointPolicy:
     """
     The joint policy of learners acting greedily, each for the agents it acts for.
 
     :param learners: name -> learner
     :param learner_of: agent -> the name of its learner; None: every agent acts with the one learner of ``learners``
-    :param w: the weights every learner acts for (None: its own); a learner conditioned on the weights acts by GPI over
-        its support
     """
 
     def act(observations: dict[str, Any], action_masks: Mapping[str, Any] | None = None) -> dict[str, int]:
@@ -207,31 +202,8 @@ def greedy_joint_policy(
             if names:
                 batch = np.stack([observations[a] for a in names])
                 masks = None if action_masks is None else np.stack([action_masks[a] for a in names])
-                actions, _ = learner.predict(batch, deterministic=True, w=w, action_masks=masks)
+                actions, _ = learner.predict(batch, deterministic=True, action_masks=masks)
                 chosen.update(zip(names, actions.tolist(), strict=True))
         return {agent: chosen[agent] for agent in observations}
 
     return act
-
-
-def greedy_rows(
-    learners: Mapping[str, SFDQN],
-    learner_of: Mapping[str, str],
-    observations: np.ndarray,
-    weights: np.ndarray,
-    action_masks: np.ndarray | None,
-    agents: list[str],
-) -> np.ndarray:
-    """
-    :data:`~sb3_sfgpi.common.rollouts.RowPolicy` of :func:`greedy_joint_policy` with a weight per row: each agent's
-    learner acts greedily for its row's weights, by GPI over its support where it is conditioned on the weights.
-    The weights are used as given: validate them once (:func:`~sb3_sfgpi.common.weights.validate_weights`, as
-    :meth:`~sb3_sfgpi.sfdqn.SFDQN.predict` does in every call), not at every step.
-    """
-    actions = np.empty(len(observations), dtype=np.int64)
-    for name, learner in learners.items():
-        rows = [i for i, agent in enumerate(agents) if learner_of[agent] == name]
-        if rows:
-            q_values, _ = learner.policy.q_values(observations[rows], weights[rows])
-            actions[rows] = masked(q_values, None if action_masks is None else action_masks[rows]).argmax(axis=1)
-    return actions

@@ -46,7 +46,6 @@ from sb3_sfgpi.learners import (
     default_learner_factory,
     end_learning,
     greedy_joint_policy,
-    greedy_rows,
     learner_step,
     start_learning,
     stored_rows,
@@ -360,22 +359,15 @@ class MultiAgentRunner:
             self.end_iteration()
         self._monitor.clear()
 
-    def learner_policy(self, learner: str | None = None, w: np.ndarray | None = None) -> JointPolicy:
+    def learner_policy(self, learner: str | None = None) -> JointPolicy:
         """
         The joint policy of the learners' greedy policies (:func:`~sb3_sfgpi.learners.greedy_joint_policy`).
 
         :param learner: None: every agent acts with the learner it trains; a learner's name: every agent acts with
             that learner (the value of its policy as a shared one)
-        :param w: the weights every learner acts for (None: its own)
         """
         acting = self.learners if learner is None else {learner: self.learners[learner]}
-        return greedy_joint_policy(acting, self._learner_of if learner is None else None, w)
-
-    def learner_rows(
-        self, observations: np.ndarray, weights: np.ndarray, action_masks: np.ndarray | None, agents: list[str]
-    ) -> np.ndarray:
-        """:meth:`learner_policy` with a weight per row (:func:`~sb3_sfgpi.learners.greedy_rows`)."""
-        return greedy_rows(self.learners, self._learner_of, observations, weights, action_masks, agents)
+        return greedy_joint_policy(acting, self._learner_of if learner is None else None)
 
     def rollout(self, policy: JointPolicy, n_episodes: int, seed: int) -> EpisodeReturns:
         """

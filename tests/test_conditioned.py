@@ -199,12 +199,23 @@ def test_one_learner_goes_on_over_the_iterations_for_the_support(three_iteration
     trained = [np.array(row["weights_trained"]["agent_0"]) for row in three_iterations.history]
     np.testing.assert_allclose(learner.weight_support, unique_points(np.array(trained), SAME_WEIGHT))
     record = three_iterations.callback.record
-    for net, info in zip(record.networks, record.infos, strict=True):  # every member follows the latest network
+    for net, info in zip(record.networks, record.infos, strict=True):
         assert isinstance(net, ConditionedSFNetwork)
         np.testing.assert_allclose(net.member_weights.cpu().numpy(), info.weights, atol=1e-7)
-        state = {k: v for k, v in net.state_dict().items() if k != "member_weights"}
-        for key, value in state.items():
-            assert th.equal(value.cpu(), learner.policy.sf_net.state_dict()[key].cpu())
+
+
+def test_members_keep_the_network_they_joined_with():
+    """A member of Π is the learner's network as it was when the member joined; the learner goes on learning."""
+    model = _masfols()
+    model.learn(max_iterations=1)
+    first = model.callback.record.networks[0]
+    joined = {k: v.clone() for k, v in first.state_dict().items()}
+    model.learn(max_iterations=3)
+    assert model.callback.record.networks[0] is first
+    (learner,) = model.runner.learners.values()
+    latest = learner.policy.sf_net.state_dict()
+    assert all(th.equal(value, joined[key]) for key, value in first.state_dict().items())
+    assert not all(th.equal(value.cpu(), latest[key].cpu()) for key, value in joined.items() if key != "member_weights")
 
 
 def test_a_resumed_run_goes_on_exactly(three_iterations, tmp_path):

@@ -1,7 +1,6 @@
 """Episodes for many weights stepped together (one batched decision a step) give exactly the returns of the same
-episodes run one after another: per-row weights in ``GPIPolicy.predict_rows`` and ``MultiAgentRunner.learner_rows``,
-``run_lockstep``, a run's test evaluation and the values of a conditioned learner's members through
-``MultiAgentRunner.lockstep``."""
+episodes run one after another: per-row weights in ``GPIPolicy.predict_rows``, ``run_lockstep``, and a run's test
+evaluation and validation through ``MultiAgentRunner.lockstep``."""
 
 from __future__ import annotations
 
@@ -105,27 +104,6 @@ def test_a_runs_test_evaluation_steps_its_weights_together_and_training_goes_on_
 
 def fig1() -> Fig1MOMDP:
     return Fig1MOMDP(one_hot=True)
-
-
-def test_a_conditioned_learners_members_are_valued_together_as_one_after_another():
-    learner_kwargs = dict(
-        gamma=0.9, learning_rate=1e-3, learning_starts=100, batch_size=32, buffer_size=5_000,
-        target_update_interval=100, exploration_steps=600, policy_kwargs=dict(net_arch=[32, 32]),
-    )  # fmt: skip
-    model = MASFOLS(
-        fig1(), policy="ConditionedMlpPolicy", steps_per_iteration=300, learner_kwargs=learner_kwargs, seed=0,
-        env_fn=fig1,
-    )  # fmt: skip
-    model.learn(max_iterations=2)
-    runner = model.runner
-    assert runner._side_by_side.copies  # the members' values were estimated together
-    given = [info.weights for info in model.policy_set.infos] + [[0.5, 0.5], [0.9, 0.1]]
-    weights = np.array([validate_weights(w, 2) for w in given])  # once, as the run does
-    seeds = [7 + episode for _ in weights for episode in range(2)]
-    together = runner.lockstep(runner.learner_rows, np.repeat(weights, 2, axis=0), seeds, 2)
-    for w, returns in zip(weights, together, strict=True):
-        alone = runner.rollout(runner.learner_policy(w=w), 2, 7)
-        np.testing.assert_array_equal(returns.discounted["agent_0"], alone.discounted["agent_0"])
 
 
 def _scorers() -> tuple[ValidationScorer, ValidationScorer, MultiAgentRunner]:

@@ -45,21 +45,31 @@ TABULAR_LEARNER = {
 TABULAR_POOL_REPLAY = True
 #: Deep learners (observations a table cannot hold): one network ψ(s, a, w) per agent for the whole run, trained over
 #: OLS's weights and acting by GPI over them (``ConditionedMlpPolicy``, two heads), with GPI-LS's minecart settings
-#: (γ 0.98, 4 × 256, replay 200,000, target network every 200 steps, ε from 1 to 0.05 over the first 50,000 steps);
-#: measured against one head and against one new MLP per iteration on minecart: docs, experiments/known_fronts.
+#: (γ 0.98, replay 200,000, target network every 200 steps, ε from 1 to 0.05 over the first 50,000 steps) on a
+#: 3 × 128 network updated three times per env step (about the compute per step of GPI-LS's 4 × 256 updated once);
+#: measured against one head, 4 × 256 and one new MLP per iteration on minecart: docs, experiments/known_fronts.
 MLP_LEARNER = {
     "policy": "ConditionedMlpPolicy",
+    "policy_kwargs": {"net_arch": [128, 128, 128]},
     "learning_rate": 3e-4,
     "gamma": 0.98,
     "buffer_size": 200_000,
     "batch_size": 128,
     "learning_starts": 100,
     "train_freq": 1,
+    "gradient_steps": 3,
     "target_update_interval": 200,
     "exploration_initial_eps": 1.0,
     "exploration_final_eps": 0.05,
     "exploration_steps": 50_000,
 }
+
+#: Admission of tables: a new policy joins Π only if GPI does no worse with it on 50 validation weights.
+TABULAR_ADMISSION = {"validation_weights": 50, "prune": False}
+#: Admission of deep learners: a member of Π is the conditioned network as it was when it joined; it joins only if GPI
+#: does no worse with it on 50 validation weights, and members GPI does better without retire (measured against
+#: members that follow the learner's latest network on minecart: docs, experiments/levers).
+MLP_ADMISSION = {"validation_weights": 50, "prune": True}
 
 
 def make_gym_env(env_id: str, **env_kwargs: Any) -> SingleAgentParallelEnv:
@@ -94,7 +104,7 @@ def gym_preset(env_id: str) -> dict[str, Any] | None:
         "n_test_weights": 50,
         "value_episodes": 5,
         "eval_episodes": 5 if tabular else 1,  # deep episodes run to the time limit while a policy idles
-        "validation_weights": 50 if tabular else 0,  # tables: a new policy joins Π only if GPI does no worse with it
+        **(TABULAR_ADMISSION if tabular else MLP_ADMISSION),
         "pool_replay": tabular and TABULAR_POOL_REPLAY,
         "objectives": [f"objective {i}" for i in range(reward_dim)],
         "run_file_env_kwargs": [],  # a run file sets no env argument of an arbitrary env

@@ -133,10 +133,6 @@ class ConditionedSFNetwork(SFNetwork):
         member.set_training_mode(False)
         return member
 
-    def follow(self, network: ConditionedSFNetwork) -> None:
-        """Take ``network``'s parameters (a learner's latest), keeping the weights this member is bound to."""
-        self.load_state_dict({**network.state_dict(), "member_weights": self.member_weights.clone()})
-
 
 class ConditionedPolicy(SFDQNPolicy):
     """
