@@ -61,6 +61,9 @@ class MASFOLS:
         estimated and validation scores GPI (see :mod:`sb3_sfgpi.tabular.pooling`). Single-agent envs (one agent: its
         dynamics do not depend on the policy) and ``TabularPolicy`` only; the run directory keeps what each
         iteration added, so that a resumed run is the same
+    :param episode_weights: what learners conditioned on the weights (``"ConditionedMlpPolicy"``) act and train for in
+        each episode: ``"own"``, their iteration's weight, or ``"support"``, one drawn from their support at every
+        episode start (GPI-LS's behaviour; :mod:`~sb3_sfgpi.episode_weights`)
     :param test_weights: the weights GPI is evaluated at after every iteration: an array ``(n, d)``, a number ``n`` of
         Dirichlet(1) weights drawn with seed 0, or None (12 such weights; fixed weights: those)
     :param eval_episodes: episodes per test weight
@@ -83,7 +86,8 @@ class MASFOLS:
         its ``run.json`` when :meth:`learn` starts
     :param verbose: 1 prints a line per iteration, and the policies validation leaves out or retires
     :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them);
-        ``pool_replay`` with several agents or other learners than tables
+        ``pool_replay`` with several agents or other learners than tables; ``episode_weights="support"`` with learners
+        not conditioned on the weights
     """
 
     def __init__(
@@ -106,6 +110,7 @@ class MASFOLS:
         sharing: str = RunSettings.sharing,
         n_envs: int = RunSettings.n_envs,
         pool_replay: bool = RunSettings.pool_replay,
+        episode_weights: str = RunSettings.episode_weights,
         env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
         run_dir: str | Path | None = None,
         eval_workers: int = 0,
@@ -113,7 +118,17 @@ class MASFOLS:
     ):
         learner_kwargs = dict(learner_kwargs or {})
         self.runner = _runner(
-            env, policy, steps_per_iteration, learner_kwargs, seed, sharing, n_envs, env_fn, run_dir, pool_replay
+            env,
+            policy,
+            steps_per_iteration,
+            learner_kwargs,
+            seed,
+            sharing,
+            n_envs,
+            env_fn,
+            run_dir,
+            pool_replay,
+            episode_weights,
         )
         fixed = None if isinstance(weights, str) else weights
         evaluation = self._evaluation(test_weights, eval_episodes, gpi_set, eval_workers, fixed, sharing, env_fn)
@@ -136,6 +151,7 @@ class MASFOLS:
             sharing=sharing,
             n_envs=n_envs,
             pool_replay=pool_replay,
+            episode_weights=episode_weights,
         )
         self.callback = OLSCallback(
             make_schedule(weights, ols_batch), steps_per_iteration, evaluation,
@@ -276,6 +292,7 @@ def _runner(
     env_fn: Callable[[], ParallelEnv | gym.Env] | None,
     run_dir: str | Path | None,
     pool_replay: bool,
+    episode_weights: str,
 ) -> MultiAgentRunner:
     """The runner of the learners, its learner options checked on one learner built and dropped."""
     runner = MultiAgentRunner(
@@ -286,6 +303,7 @@ def _runner(
         sharing=sharing,
         n_envs=n_envs,
         env_fn=env_fn,
+        episode_weights=episode_weights,
     )
     slots = max(len(slots) for slots in runner.slots.values())
     goes_on = policy in SFDQN.policy_aliases and issubclass(SFDQN.policy_aliases[policy], ConditionedPolicy)
@@ -294,4 +312,9 @@ def _runner(
     runner.check_learner()
     if pool_replay:
         _check_poolable(runner, policy)
+    if episode_weights == "support" and not goes_on:
+        raise ValueError(
+            f"episode_weights='support' draws the weights of learners conditioned on them: policy must be "
+            f"'ConditionedMlpPolicy', got {policy!r}"
+        )
     return runner

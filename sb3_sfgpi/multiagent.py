@@ -40,6 +40,7 @@ from sb3_sfgpi.common.rollouts import (
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import SAME_WEIGHT
 from sb3_sfgpi.compiled_steps import CompiledSteps, PendingStep, compiled_steps
+from sb3_sfgpi.episode_weights import EpisodeWeights
 from sb3_sfgpi.learners import (
     EpisodeMonitor,
     LearnerFactory,
@@ -51,7 +52,7 @@ from sb3_sfgpi.learners import (
     stored_rows,
 )
 from sb3_sfgpi.ols import unique_points
-from sb3_sfgpi.run_settings import SHARED, SHARINGS
+from sb3_sfgpi.run_settings import EPISODE_WEIGHTS, SHARED, SHARINGS
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.training_state import restore_training_state
 
@@ -89,6 +90,9 @@ class MultiAgentRunner:
         value estimates always run on ``env``
     :param env_fn: picklable constructor of the copies (required when ``n_envs > 1``)
     :param env_kwargs: its keyword arguments (they should build the same env as ``env``)
+    :param episode_weights: what learners conditioned on the weights act and train for in each episode: ``"own"``
+        (their iteration's weight) or ``"support"`` (one drawn from their support at every reset of the env; see
+        :class:`~sb3_sfgpi.episode_weights.EpisodeWeights`)
     """
 
     def __init__(
@@ -105,6 +109,7 @@ class MultiAgentRunner:
         n_envs: int = 1,
         env_fn: Callable[..., ParallelEnv | gym.Env] | None = None,
         env_kwargs: Mapping[str, Any] | None = None,
+        episode_weights: str = EPISODE_WEIGHTS[0],
     ):
         if isinstance(log_interval, bool) or not isinstance(log_interval, int) or log_interval < 1:
             raise ValueError(f"log_interval must be a positive integer, got {log_interval!r}")
@@ -151,6 +156,7 @@ class MultiAgentRunner:
         self.iteration = 0
         self.logger: Logger = folderless_logger(verbose)
         self._monitor = EpisodeMonitor(self._reward_dim)
+        self.episode_weights = EpisodeWeights(episode_weights)
 
     @property
     def learner_names(self) -> list[str]:
@@ -237,6 +243,7 @@ class MultiAgentRunner:
                 support_weights = np.array([*(support or []), *this_iteration], dtype=np.float64)
                 learner.set_weight_support(np.array(unique_points(support_weights, SAME_WEIGHT)))
             self.learners[name] = learner
+        self.episode_weights.start(self.learners, self.seed, iteration)
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for name, learner in self.learners.items():
             callback = self.learner_callback(name) if self.learner_callback else None
@@ -283,6 +290,7 @@ class MultiAgentRunner:
                 learner = self.learners[name]
                 last = batched.copy() if whole else replaced(learner._last_obs, rows, batched)  # type: ignore[arg-type]
                 learner._last_obs = learner._last_original_obs = last  # type: ignore[assignment]
+        self.episode_weights.draw()  # episodes start: the weights their conditioned learners act for
 
     def step(self, chosen: PendingStep | None = None) -> bool:
         """
@@ -348,8 +356,10 @@ class MultiAgentRunner:
 
     def end_iteration(self) -> None:
         """
-        Remove the learners' optimism (:meth:`~sb3_sfgpi.sfdqn.SFDQN.remove_optimism`), close their callbacks and logs.
+        Give the learners their own weights back (:class:`~sb3_sfgpi.episode_weights.EpisodeWeights`), remove their
+        optimism (:meth:`~sb3_sfgpi.sfdqn.SFDQN.remove_optimism`), close their callbacks and logs.
         """
+        self.episode_weights.end()
         for name, callback in self._learner_callbacks.items():
             end_learning(self.learners[name], callback)
         self._learner_callbacks = {}

@@ -119,7 +119,7 @@ def _hexadecimal(value: str) -> bool:
 
 #: What the known settings of ``run.json`` must be (others are kept as they are).
 _SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
-    **dict.fromkeys(("domain", "algorithm", "policy", "gpi_set", "value_mode", "sharing"), _string),
+    **dict.fromkeys(("domain", "algorithm", "policy", "gpi_set", "value_mode", "sharing", "episode_weights"), _string),
     **dict.fromkeys(("env_kwargs", "learner_kwargs"), lambda v: isinstance(v, dict)),
     **dict.fromkeys(("seed", "iterations", "steps_per_iteration", "n_test_weights", "validation_weights"), _integer),
     **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers", "n_envs"), _integer),

@@ -22,6 +22,10 @@ SHARINGS = ("independent", SHARED)
 OLS_BATCHES = ("top", "same-after-extrema")
 #: How the values of new policies can be estimated (see :class:`~sb3_sfgpi.callbacks.ValueEstimation`).
 VALUE_MODES = ("joint", "shared")
+#: What conditioned learners act and train for in each episode (see :mod:`~sb3_sfgpi.episode_weights`).
+EPISODE_WEIGHTS = ("own", "support")
+#: Settings added after runs were first written: a ``run.json`` without one is of a run that had its default.
+ADDED_LATER = ("episode_weights",)
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,7 @@ class RunSettings:
     sharing: str = "independent"
     n_envs: int = 1
     pool_replay: bool = False
+    episode_weights: str = EPISODE_WEIGHTS[0]
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
@@ -66,10 +71,10 @@ class RunSettings:
         :param where: the file, for the error
         :raises ValueError: a setting is missing
         """
-        missing = [name for name in cls.names() if name not in config]
+        missing = [name for name in cls.names() if name not in config and name not in ADDED_LATER]
         if missing:
             raise ValueError(f"{where} lacks the settings {missing}: not a run of MASFOLS")
-        return cls(**{name: config[name] for name in cls.names()})
+        return cls(**{name: config[name] for name in cls.names() if name in config})
 
     def to_json(self) -> dict[str, Any]:
         """The settings as ``run.json`` stores them."""

@@ -11,7 +11,7 @@ from parallel_chain import make_chain_runner
 
 from sb3_sfgpi.callbacks import OLSCallback, learn_iterations
 from sb3_sfgpi.evaluation import EvaluationConfig
-from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, VALUE_MODES, RunSettings
+from sb3_sfgpi.run_settings import EPISODE_WEIGHTS, OLS_BATCHES, SHARINGS, VALUE_MODES, RunSettings
 from sb3_sfgpi.schedules import OLSSchedule
 
 counts = st.integers(min_value=0, max_value=10**6)
@@ -35,6 +35,7 @@ RUN_SETTINGS = st.builds(
     sharing=st.sampled_from(SHARINGS),
     n_envs=counts,
     pool_replay=st.booleans(),
+    episode_weights=st.sampled_from(EPISODE_WEIGHTS),
 )
 
 
@@ -51,6 +52,12 @@ def test_a_run_json_without_a_setting_names_it():
     del stored["prune"]
     with pytest.raises(ValueError, match=r"run.json lacks the settings \['prune'\]: not a run of MASFOLS"):
         RunSettings.stored(stored, "run.json")
+
+
+def test_a_run_json_from_before_a_setting_was_added_has_its_default():
+    stored = RunSettings(episode_weights="support").to_json()
+    del stored["episode_weights"]  # a run written before the setting: it drew no weights
+    assert RunSettings.stored(stored, "run.json") == RunSettings()
 
 
 @pytest.mark.parametrize("cap", [0, -1])

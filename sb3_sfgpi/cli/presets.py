@@ -15,7 +15,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from sb3_sfgpi.cli.errors import UsageError
-from sb3_sfgpi.run_settings import OLS_BATCHES, SHARINGS, VALUE_MODES, RunSettings
+from sb3_sfgpi.run_settings import EPISODE_WEIGHTS, OLS_BATCHES, SHARINGS, VALUE_MODES, RunSettings
 from sb3_sfgpi.trust import refuse_unlisted
 
 ENTRY_POINT_GROUP = "sb3_sfgpi.domains"
@@ -50,6 +50,7 @@ SETTABLE: dict[str, tuple[Callable[[Any], bool], str]] = {
     "prune": (lambda value: isinstance(value, bool), "true or false"),
     "admit_together": (lambda value: isinstance(value, bool), "true or false"),
     "pool_replay": (lambda value: isinstance(value, bool), "true or false"),
+    "episode_weights": (_one_of(EPISODE_WEIGHTS), f"one of {', '.join(EPISODE_WEIGHTS)}"),
     "n_test_weights": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
     "value_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
     "eval_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
