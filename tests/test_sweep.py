@@ -105,17 +105,26 @@ def local_ray():
     ray.shutdown()
 
 
+#: A sweep whose first run is killed: its second iteration of 20,000 steps still has about a second of work left when
+#: the kill lands (Four-Room's compiled joint steps run 3,000 in a few hundredths of a second: a run of those could
+#: finish before the kill); the other run, never killed, stays tiny.
+KILLED_SWEEP = grid(
+    ["four-room"], ["ma-sfols"], [0], options=[*TINY, "--iterations", "2", "--steps-per-iteration", "20000"]
+)
+KILLED_SWEEP += grid(["four-room"], ["random"], [0], options=TINY)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """The killed sweep's first run trained in this process, never killed (what the killed one must end as)."""
+    return train_run(KILLED_SWEEP[0], tmp_path_factory.mktemp("uninterrupted") / "run")
+
+
 @pytest.mark.parametrize("shared_filesystem", [True, False])
-def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(tmp_path, local_ray, shared_filesystem):
-    # a second iteration of 20,000 steps: the kill lands while the target still has about a second of work left
-    # (Four-Room's compiled joint steps run 3,000 in a few hundredths of a second: a run of those could finish before
-    # the kill); the other run of the sweep, never killed, stays tiny
-    long_enough = [*TINY, "--iterations", "2", "--steps-per-iteration", "20000"]
-    specs = grid(["four-room"], ["ma-sfols"], [0], options=long_enough) + grid(
-        ["four-room"], ["random"], [0], options=TINY
-    )
-    target = specs[0]
-    uninterrupted = train_run(target, tmp_path / "uninterrupted")  # the same run in this process, never killed
+def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(
+    tmp_path, local_ray, uninterrupted, shared_filesystem
+):
+    specs, target = KILLED_SWEEP, KILLED_SWEEP[0]
     out = tmp_path / "sweep"
     outcomes: list = []
     sweep = threading.Thread(
