@@ -22,7 +22,8 @@ class EpisodeWeights:
     """
     Draws the weights of conditioned learners at every episode start of an iteration (``"support"``), or nothing
     (``"own"``). The draws of an iteration come from ``derive_seed(seed, iteration, learner name, "episode-weights")``,
-    so a resumed run, which repeats an interrupted iteration, draws the same weights.
+    so a resumed run, which repeats an interrupted iteration, draws the same weights. With several copies of the env
+    (``n_envs``) a weight is drawn whenever one of them starts an episode: a learner acts for one weight in all of them.
 
     :param kind: ``"own"`` or ``"support"`` (see the module)
     :raises ValueError: another kind

@@ -153,6 +153,11 @@ def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys)
         (["train", "four-room", "--set", "sharing=experience", "--out", "NOT_A_RUN"], "--set sharing must be one of"),
         (["train", "four-room", "--set", "prune=yes", "--out", "NOT_A_RUN"], "--set prune must be true or false"),
         (["train", "four-room", "--set", "n_envs=0", "--out", "NOT_A_RUN"], "--set n_envs must be an integer in [1, "),
+        (["train", "four-room", "--set", "episode_weights=all", "--out", "NOT_A_RUN"], "--set episode_weights must be"),
+        (
+            ["train", "four-room", "--set", "episode_weights=support", "--out", "NOT_A_RUN"],
+            "policy must be 'ConditionedMlpPolicy', got 'TabularPolicy'",
+        ),
         (
             ["train", "four-room", "--set", "validation_weights=0", "--set", "prune=true", "--out", "NOT_A_RUN"],
             "--set prune=true needs validation weights",
