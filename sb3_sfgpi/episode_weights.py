@@ -41,11 +41,12 @@ class EpisodeWeights:
         """
         An iteration starts: remember the conditioned learners' own weights, seed their draws.
 
-        :param learners: the iteration's learners, by name (those not conditioned on the weights keep theirs)
+        :param learners: the iteration's learners conditioned on the weights, by name
+            (:attr:`~sb3_sfgpi.multiagent.MultiAgentRunner.conditioned_learners`)
         """
         if self.kind == "own":
             return
-        self._learners = {name: learner for name, learner in learners.items() if learner.conditioned}
+        self._learners = dict(learners)
         self._own = {name: learner.weights for name, learner in self._learners.items()}
         seeds = {name: derive_seed(seed, iteration, name, "episode-weights") for name in self._learners}
         self._generators = {name: np.random.default_rng(seeds[name]) for name in self._learners}

@@ -295,6 +295,12 @@ def _runner(
     episode_weights: str,
 ) -> MultiAgentRunner:
     """The runner of the learners, its learner options checked on one learner built and dropped."""
+    goes_on = policy in SFDQN.policy_aliases and issubclass(SFDQN.policy_aliases[policy], ConditionedPolicy)
+    if episode_weights == "support" and not goes_on:  # refused before the env's copies start
+        raise ValueError(
+            f"episode_weights='support' draws the weights of learners conditioned on them: policy must be "
+            f"'ConditionedMlpPolicy', got {policy!r}"
+        )
     runner = MultiAgentRunner(
         env,
         seed=seed,
@@ -306,15 +312,9 @@ def _runner(
         episode_weights=episode_weights,
     )
     slots = max(len(slots) for slots in runner.slots.values())
-    goes_on = policy in SFDQN.policy_aliases and issubclass(SFDQN.policy_aliases[policy], ConditionedPolicy)
     sized = learner_kwargs if goes_on else replay_sized(learner_kwargs, steps_per_iteration, slots)
     runner.learner_factory = default_learner_factory(policy=policy, **sized)
     runner.check_learner()
     if pool_replay:
         _check_poolable(runner, policy)
-    if episode_weights == "support" and not goes_on:
-        raise ValueError(
-            f"episode_weights='support' draws the weights of learners conditioned on them: policy must be "
-            f"'ConditionedMlpPolicy', got {policy!r}"
-        )
     return runner

@@ -243,7 +243,7 @@ class MultiAgentRunner:
                 support_weights = np.array([*(support or []), *this_iteration], dtype=np.float64)
                 learner.set_weight_support(np.array(unique_points(support_weights, SAME_WEIGHT)))
             self.learners[name] = learner
-        self.episode_weights.start(self.learners, self.seed, iteration)
+        self.episode_weights.start(self.conditioned_learners, self.seed, iteration)
         self.reset_env(derive_seed(self.seed, iteration, "reset"))
         for name, learner in self.learners.items():
             callback = self.learner_callback(name) if self.learner_callback else None
