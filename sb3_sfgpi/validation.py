@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -106,8 +107,12 @@ def _runs_decisions(
     return runs
 
 
+@lru_cache(maxsize=1 << 14)
 def _without(sets: frozenset[frozenset[int]], member: int) -> frozenset[frozenset[int]]:
-    """The followed sets of a set's episodes, in the indices of the set without ``member`` (episodes unchanged)."""
+    """
+    The followed sets of a set's episodes, in the indices of the set without ``member`` (episodes unchanged); cached:
+    most weights follow the same few sets, and pruning asks for every member of every weight.
+    """
     return frozenset(frozenset(j - (j > member) for j in members if j != member) for members in sets)
 
 
@@ -147,24 +152,49 @@ class ValidationScorer:
 
     def replayed(self, policy_set: GPIPolicy, scored: Scored) -> Scored:
         """
-        What ``policy_set`` scores, from another set's episodes ``scored`` (e.g. Π's, for Π and new policies): at each
-        weight GPI over ``policy_set`` acts on the decisions' observations in one batch; where it takes the same
-        actions, its episodes are those ones; elsewhere they are rolled out. Tables only (their values of a batch
-        are those of each observation alone); other sets are rolled out at every weight.
+        What ``policy_set`` scores, from another set's episodes ``scored`` (e.g. Π's, for Π and new policies): GPI over
+        ``policy_set`` acts on every weight's decisions' observations in one batch (each row with its weight); at a
+        weight where it takes the same actions, its episodes are those ones; elsewhere they are rolled out. Tables
+        only (their values of a batch are those of each observation alone); other sets are rolled out at every weight.
         """
         if not isinstance(policy_set.networks[0], TabularSFNetwork):
             return self(policy_set)
-        runs: list[Run | None] = []
-        for i, (returns, decided) in enumerate(zip(scored.returns, scored.decisions, strict=True)):
-            observations, masks, actions = decided
-            again, members = (
-                policy_set.predict_followed(observations, self.weights[i], masks) if len(actions) else (actions, [])
-            )
-            runs.append((returns, frozenset(members), decided) if np.array_equal(again, actions) else None)
+        decided = [i for i, (_, _, actions) in enumerate(scored.decisions) if len(actions)]
+        runs: list[Run | None] = [(r, frozenset(), d) for r, d in zip(scored.returns, scored.decisions, strict=True)]
+        if decided:
+            again, members = self._decided_again(policy_set, scored, decided)
+            for i in decided:
+                same = np.array_equal(again[i], scored.decisions[i][2])
+                runs[i] = (scored.returns[i], members[i], scored.decisions[i]) if same else None
         redo = [i for i, run in enumerate(runs) if run is None]
         for i, run in zip(redo, self._runs(policy_set, redo), strict=True):
             runs[i] = run
         return self._scored(runs)  # type: ignore[arg-type]
+
+    def _decided_again(
+        self, policy_set: GPIPolicy, scored: Scored, decided: list[int]
+    ) -> tuple[dict[int, np.ndarray], dict[int, frozenset[frozenset[int]]]]:
+        """GPI over ``policy_set`` on the decisions of the weights ``decided``, in one batch: its actions and the
+        members it followed, per weight."""
+        observations, masks, actions = zip(*(scored.decisions[i] for i in decided), strict=True)
+        lengths = [len(a) for a in actions]
+        n_actions = policy_set.action_space.n
+        if all(m is None for m in masks):
+            batch_masks = None
+        else:
+            batch_masks = np.concatenate(
+                [np.ones((n, n_actions), dtype=bool) if m is None else m for n, m in zip(lengths, masks, strict=True)]
+            )
+        rows = np.repeat(self.weights[decided], lengths, axis=0)
+        again, attaining = policy_set.predict_attaining(np.concatenate(observations), rows, batch_masks, per_row=True)
+        patterns, pattern_of = distinct_columns(attaining)
+        bounds = np.cumsum([0, *lengths]).tolist()
+        actions_of = {i: again[start:stop] for i, start, stop in zip(decided, bounds[:-1], bounds[1:], strict=True)}
+        pairs = np.unique(np.repeat(np.arange(len(decided)), lengths) * len(patterns) + pattern_of)  # (weight, set)
+        members_of: dict[int, list[frozenset[int]]] = {i: [] for i in decided}
+        for position, k in zip((pairs // len(patterns)).tolist(), (pairs % len(patterns)).tolist(), strict=True):
+            members_of[decided[position]].append(patterns[k])
+        return actions_of, {i: frozenset(sets) for i, sets in members_of.items()}
 
     def without(self, policy_set: GPIPolicy, scored: Scored, member: int) -> Scored:
         """

@@ -148,6 +148,32 @@ def test_validation_steps_its_weights_together_with_the_same_episodes_and_decisi
     assert together.rollouts == alone.rollouts > 6
 
 
+def test_replayed_masked_decisions_roll_out_only_the_weights_where_gpi_acts_otherwise(random_lights_set):
+    """Π with new policies is scored from Π's masked decisions (every weight's in one batch): each weight is rolled
+    out again only where GPI over the larger set acts otherwise within the masks, and the scores are full rollouts'.
+    The second new member is the first member's table with light_0's masked green (action 2, where its third approach
+    flag is 0) worth the most: within the masks it changes no action, so no weight is rolled out for it."""
+    scorer, _, _ = _scorers()
+    tempting = random_tabular_network(0, (3, 3, 3, 2, 2, 2), 3, 2)
+    table = random_lights_set.networks[0].table.dense().reshape(3, 3, 3, 2, 2, 2, 3, 2)
+    table[..., 0, :, 2, :] = 1_000.0
+    tempting.table.set_dense(table.reshape(tempting.table.n_rows, -1))
+    smaller = random_lights_set.subset([0, 1])
+    for added, replays in ((random_lights_set.networks[2], False), (tempting, True)):
+        larger = smaller.subset([0, 1])
+        larger.add(added, weights=[0.5, 0.5], agent="light_0")
+        scored = scorer(smaller)
+        assert all(masks is not None for _, masks, actions in scored.decisions if len(actions))
+        acts_otherwise = sum(
+            not np.array_equal(larger.predict_followed(observations, w, masks)[0], actions)
+            for (observations, masks, actions), w in zip(scored.decisions, scorer.weights, strict=True)
+        )
+        before = scorer.rollouts
+        replayed = scorer.replayed(larger, scored)
+        assert scorer.rollouts - before == acts_otherwise == (0 if replays else len(scorer.weights))
+        _same(replayed, scorer(larger))
+
+
 ROW = st.floats(0.0, 1e308, allow_nan=False, allow_subnormal=True)
 
 

@@ -38,10 +38,17 @@ class EpisodeReturns:
     undiscounted: dict[str, np.ndarray]
     final_infos: list[dict[str, dict[str, Any]]] = field(default_factory=list)
     step_infos: list[dict[str, dict[str, list[float]]]] = field(default_factory=list)
+    _means: dict[str, np.ndarray] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def mean_discounted(self, agent: str) -> np.ndarray:
-        """Mean discounted vector return of ``agent``: the Monte-Carlo estimate of ``V^π``."""
-        return self.discounted[agent].mean(axis=0)
+        """
+        Mean discounted vector return of ``agent``: the Monte-Carlo estimate of ``V^π`` (computed once: validation
+        scores the same episodes again for every policy set that would take the same actions).
+        """
+        if agent not in self._means:
+            mean = self._means[agent] = self.discounted[agent].mean(axis=0)
+            mean.flags.writeable = False  # shared by every call
+        return self._means[agent]
 
     def mean_discounted_over(self, agents: Iterable[str] | None = None) -> np.ndarray:
         """Mean over ``agents`` (default: all of them) of their mean discounted vector returns."""
