@@ -277,15 +277,34 @@ def _run_batched(
         total[episodes, agents] += rewards
         discount[np.unique(episodes)] *= gamma
         observations = batch.observations()
-    infos = batch.final_infos()
+    return _batched_results(batch.agents, started, discounted, total, batch.final_infos(), per_result)
+
+
+def _batched_results(
+    agents: list[str],
+    started: np.ndarray,
+    discounted: np.ndarray,
+    total: np.ndarray,
+    infos: list[dict[str, dict[str, Any]]],
+    per_result: int,
+) -> list[EpisodeReturns]:
+    """Each ``per_result`` consecutive episodes' returns of the agents that started in one of them (of batched
+    episodes: ``started`` ``(episodes, agents)``, returns ``(episodes, agents, d)``)."""
+    shape = (len(started) // per_result, per_result, len(agents))
+    started_in, every = started.reshape(shape), started.reshape(shape).all(axis=1).tolist()
+    present = started_in.any(axis=1).tolist()
+    by_result = [returns.reshape(*shape, -1) for returns in (discounted, total)]
     results = []
-    for i in range(0, len(live), per_result):
-        rows = slice(i, i + per_result)
-        present = [(k, agent) for k, agent in enumerate(batch.agents) if started[rows, k].any()]
-        returns = [
-            {agent: by_agent[rows][started[rows, k], k] for k, agent in present} for by_agent in (discounted, total)
+    for r in range(shape[0]):
+        rows = [
+            {
+                agent: block[r, :, k].copy() if every[r][k] else block[r, started_in[r, :, k], k]
+                for k, agent in enumerate(agents)
+                if present[r][k]
+            }
+            for block in by_result
         ]
-        results.append(EpisodeReturns(*returns, infos[rows]))
+        results.append(EpisodeReturns(*rows, infos[r * per_result : (r + 1) * per_result]))
     return results
 
 
