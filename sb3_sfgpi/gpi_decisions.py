@@ -22,7 +22,7 @@ from torch import nn
 from sb3_sfgpi.common.action_masks import checked_masks, masked
 from sb3_sfgpi.common.observations import numeric_array
 from sb3_sfgpi.common.weights import validate_weight_rows, validate_weights, weighted_sum
-from sb3_sfgpi.stacking import Stacked, numpy_tables, stack_networks
+from sb3_sfgpi.stacking import Stacked, StackedTables, numpy_tables, stack_networks
 
 
 class BatchedGPI(ABC):
@@ -212,6 +212,12 @@ class BatchedGPI(ABC):
         obs, _ = self._obs_to_array(observation)
         if per_row:
             _check_one_weight_per_row(weights[0], obs)
+        stacked = self._stack()
+        if isinstance(stacked, StackedTables) and self.device.type == "cpu":  # one compiled call
+            index = stacked.rows(obs)  # raises ValueError for an observation outside the space
+            return stacked.attaining(
+                index, weights[2], left_out, checked_masks(action_masks, len(obs), self.action_space.n)
+            )
         q = self._policy_q(obs, weights)
         if left_out is not None:
             rows = np.flatnonzero(left_out >= 0)

@@ -59,6 +59,31 @@ class StackedTables:
         """GPI action values of a batch, in numpy (CPU sets): cheaper than torch for a few small operations."""
         return self.policy_q_numpy(obs, weights).max(axis=1)
 
+    def attaining(
+        self, index: np.ndarray, weights: np.ndarray, left_out: np.ndarray | None, masks: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        GPI's actions of a batch and the members that attain their values, in one compiled call
+        (:func:`~sb3_sfgpi.tabular.kernels.gpi_attaining`: numpy's bits; CPU sets).
+
+        :param index: the observations' table rows (:meth:`~sb3_sfgpi.tabular.network.TabularSFNetwork.rows`)
+        :param weights: shape ``(d,)``, or ``(batch, d)``: each observation's own; float32
+        :param left_out: each observation's member GPI acts without (``-1``: none), or None
+        :param masks: the actions each observation has, shape ``(batch, n_actions)``, or None: every action
+        :return: the actions ``(batch,)`` and whether each member attains GPI's value of them ``(P, batch)``
+        """
+        from sb3_sfgpi.tabular.kernels import gpi_attaining  # numba: loaded where tables act
+
+        batch = len(index)
+        rows = np.ascontiguousarray(np.broadcast_to(weights, (batch, self.reward_dim)), dtype=np.float32)
+        actions, attaining = np.empty(batch, dtype=np.int64), np.empty((self.n_policies, batch), dtype=bool)
+        gpi_attaining(
+            self.tables_numpy, self.stack_row_numpy.take(index).astype(np.int64), rows,
+            np.full(batch, -1, dtype=np.int64) if left_out is None else left_out.astype(np.int64, copy=False),
+            np.empty((0, self.n_actions), dtype=bool) if masks is None else masks, actions, attaining,
+        )  # fmt: skip
+        return actions, attaining
+
     def policy_q_numpy(self, obs: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """
         Every policy's action values ``w · ψ^π(s, a)`` of a batch, shape ``(batch, P, A)`` (CPU sets).

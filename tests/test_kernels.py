@@ -18,10 +18,12 @@ from numba import njit
 from sb3_sfgpi.common.action_masks import masked
 from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.weights import weighted_sum
+from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn.networks import argmax_random_ties
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
 from sb3_sfgpi.sfdqn.tabular_policy import TabularPolicy
 from sb3_sfgpi.tabular import kernels
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 from sb3_sfgpi.tabular.numpy_random import global_stream
 
 OBSERVATION_SPACES = [spaces.Discrete(7, start=-2), spaces.MultiDiscrete([3, 4], start=[1, -1]), spaces.MultiBinary(3)]
@@ -158,7 +160,16 @@ def test_the_compiled_read_takes_one_weight_vector():
 
 
 @pytest.mark.parametrize(
-    "kernel", ["sampled_td_update", "greedy_action", "table_row", "action_values", "epsilon_greedy", "planning_sweeps"]
+    "kernel",
+    [
+        "sampled_td_update",
+        "greedy_action",
+        "table_row",
+        "action_values",
+        "epsilon_greedy",
+        "planning_sweeps",
+        "gpi_attaining",
+    ],
 )
 def test_the_compiled_kernels_have_no_fused_multiply_add(kernel):
     compiled = getattr(kernels, kernel)
@@ -169,6 +180,9 @@ def test_the_compiled_kernels_have_no_fused_multiply_add(kernel):
         policy.q_values(np.array([0, 1]), policy.weights.numpy())
         policy.masked_actions(np.array([0, 1]), policy.weights.numpy(), None, 0.0)
         policy.plan(buffer, 0.9, 2)
+        policy_set = GPIPolicy()
+        policy_set.add(policy.sf_net, weights=policy.weights.numpy())
+        policy_set.predict_attaining(np.array([0, 1]), [0.5, 0.2, 0.3])
     assert_no_fused_multiply_add(compiled)
 
 
@@ -292,3 +306,40 @@ def test_an_observation_outside_the_space_is_refused_by_the_compiled_epsilon_gre
     policy = learner(spaces.MultiDiscrete([3, 4], start=[1, -1]), 0, False, 0.1)
     with pytest.raises(ValueError, match=r"observation \[4, 0\] is outside the observation space"):
         policy.masked_actions(np.array([[2, 0], [4, 0]]), policy.weights.numpy(), None, 0.0)
+
+
+VALUES = st.sampled_from([0.0, -0.0, 1.0, 2.0, -1.0, np.inf, -np.inf, np.nan])
+
+
+@settings(max_examples=80, deadline=None)
+@given(n_policies=st.integers(1, 4), reward_dim=st.integers(1, 3), per_row=st.booleans(), data=st.data())
+def test_compiled_gpi_decisions_and_members_followed_are_numpys(n_policies, reward_dim, per_row, data):
+    """GPI over CPU tables acts and traces the members it follows in one compiled call: the same actions and members
+    as the numpy path of other sets (here: the same tables as a view without one more member), with ties, signed
+    zeros, infinities and NaN among the values, per-row weights, a member left out per row, and action masks."""
+    nvec, n_actions = (3, 2), 3
+    tables = []
+    for _ in range(n_policies + 1):
+        net = TabularSFNetwork(spaces.MultiDiscrete(nvec), spaces.Discrete(n_actions), reward_dim)
+        width = n_actions * reward_dim
+        values = data.draw(st.lists(VALUES, min_size=6 * width, max_size=6 * width))
+        net.table.set_dense(np.array(values, dtype=np.float32).reshape(6, width))
+        tables.append(net)
+    compiled = GPIPolicy()
+    for net in tables[:-1]:
+        compiled.add(net, weights=np.ones(reward_dim))
+    extended = compiled.subset(range(n_policies))
+    extended.add(tables[-1], weights=np.ones(reward_dim))
+    numpy_path = extended.without(n_policies)  # a view: the numpy arithmetic over the same tables
+    batch = data.draw(st.integers(1, 6))
+    obs = np.array(data.draw(st.lists(st.tuples(st.integers(0, 2), st.integers(0, 1)), min_size=batch, max_size=batch)))
+    weight = st.lists(st.integers(0, 3), min_size=reward_dim, max_size=reward_dim).filter(any)
+    w = np.array(data.draw(st.lists(weight, min_size=batch, max_size=batch) if per_row else weight), dtype=np.float64)
+    left_out = np.array(data.draw(st.lists(st.integers(-1, n_policies - 1), min_size=batch, max_size=batch)))
+    mask = st.lists(st.booleans(), min_size=n_actions, max_size=n_actions).filter(any)
+    masks = np.array(data.draw(st.lists(mask, min_size=batch, max_size=batch)))
+    for options in ({}, {"left_out": left_out}, {"action_masks": masks}, {"left_out": left_out, "action_masks": masks}):
+        actions, attaining = compiled.predict_attaining(obs, w, per_row=per_row, **options)
+        expected_actions, expected_attaining = numpy_path.predict_attaining(obs, w, per_row=per_row, **options)
+        np.testing.assert_array_equal(actions, expected_actions)
+        np.testing.assert_array_equal(attaining, expected_attaining)

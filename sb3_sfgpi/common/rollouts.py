@@ -265,17 +265,20 @@ def _run_batched(
     total = np.zeros_like(discounted)
     discount = np.ones(len(live))
     joint = np.zeros(live.shape, dtype=np.int64)
+    names_of = np.array(batch.agents, dtype=object)
     while live.any():
         episodes, agents = np.nonzero(live)
-        names = [batch.agents[i] for i in agents]
-        joint[episodes, agents] = policy(observations[episodes, agents], weights[episodes], None, names)
+        stepping = live.any(axis=1)
+        joint[episodes, agents] = policy(
+            observations[episodes, agents], weights[episodes], None, names_of[agents].tolist()
+        )
         if decided is not None:
             decided(episodes.tolist())
         rewards, live = batch.step(joint)
         rewards = rewards[episodes, agents]
         discounted[episodes, agents] += discount[episodes, None] * rewards.astype(np.float64)
         total[episodes, agents] += rewards
-        discount[np.unique(episodes)] *= gamma
+        discount[stepping] *= gamma
         observations = batch.observations()
     return _batched_results(batch.agents, started, discounted, total, batch.final_infos(), per_result)
 

@@ -171,6 +171,59 @@ def greedy_action(psi: np.ndarray, weights: np.ndarray, forbidden: np.ndarray) -
 
 
 @njit(cache=True, nogil=True)
+def gpi_attaining(
+    stack: np.ndarray,
+    stack_rows: np.ndarray,
+    weights: np.ndarray,
+    left_out: np.ndarray,
+    allowed: np.ndarray,
+    actions: np.ndarray,
+    attaining: np.ndarray,
+) -> None:
+    """
+    GPI's action of each observation over stacked tables, and the members that attain its value, with numpy's bits
+    (:meth:`~sb3_sfgpi.gpi_decisions.GPIPredictor.predict_attaining`): each member's ``w · ψ(s, a)`` as
+    :func:`weighted_value`, ``-inf`` for the member left out and the actions not allowed, the maximum over members
+    (NaN if one is NaN), the first action of the largest such value (or the first NaN), and the members whose value
+    of it equals that maximum.
+
+    :param stack: every member's ``ψ`` of each stacked state, shape ``(states, P·A·d)``, float32
+    :param stack_rows: each observation's state in ``stack``, shape ``(B,)``
+    :param weights: each observation's weights, shape ``(B, d)``, float32
+    :param left_out: each observation's member that GPI acts without (``-1``: none), shape ``(B,)``
+    :param allowed: the actions each observation has, ``(B, A)``, or ``(0, A)``: every action
+    :param actions: written: GPI's actions, shape ``(B,)``
+    :param attaining: written: whether each member attains GPI's value of the action taken, shape ``(P, B)``
+    """
+    n_policies, d = attaining.shape[0], weights.shape[1]
+    n_actions = stack.shape[1] // (n_policies * d)
+    q = np.empty((n_policies, n_actions), dtype=np.float32)
+    best = np.empty(n_actions, dtype=np.float32)
+    for b in range(stack_rows.shape[0]):
+        row = stack[stack_rows[b]]
+        for p in range(n_policies):
+            for a in range(n_actions):
+                start = (p * n_actions + a) * d
+                q[p, a] = weighted_value(row[start : start + d], weights[b])
+                if p == left_out[b] or (allowed.shape[0] > 0 and not allowed[b, a]):
+                    q[p, a] = -np.inf
+        for a in range(n_actions):
+            best[a] = q[0, a]
+            for p in range(1, n_policies):
+                if not np.isnan(best[a]) and (np.isnan(q[p, a]) or q[p, a] > best[a]):
+                    best[a] = q[p, a]
+        chosen = 0
+        for a in range(1, n_actions):
+            if np.isnan(best[chosen]):
+                break
+            if np.isnan(best[a]) or best[a] > best[chosen]:
+                chosen = a
+        actions[b] = chosen
+        for p in range(n_policies):
+            attaining[p, b] = q[p, chosen] == best[chosen]
+
+
+@njit(cache=True, nogil=True)
 def table_row(observations: np.ndarray, flat: int, strides: np.ndarray, first_row: int) -> int:
     """The table row of the observation stored at row ``flat``: its mixed-radix index (integers: exact)."""
     row = 0
