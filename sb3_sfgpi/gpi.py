@@ -43,7 +43,7 @@ from sb3_sfgpi.policy_files import CorruptPolicySetError, file_state, network_sp
 from sb3_sfgpi.policy_set_files import MANIFEST, PolicyInfo, read_policy_set, write_policy_set
 from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 from sb3_sfgpi.sfdqn.sfdqn import SFDQN
-from sb3_sfgpi.stacking import LeaveOneOut
+from sb3_sfgpi.stacking import LeaveOneOut, StackedTables
 from sb3_sfgpi.tabular.network import TabularSFNetwork
 
 __all__ = ["MANIFEST", "CorruptPolicySetError", "Decisions", "GPIPolicy", "GPIPredictor", "PolicyInfo"]
@@ -151,9 +151,12 @@ class GPIPolicy(BatchedGPI):
         copied.set_training_mode(False)
         for parameter in copied.parameters():
             parameter.requires_grad_(False)
+        stacked = self._stacked
         self.networks.append(copied)
         self.infos.append(PolicyInfo(w, v, agent, iteration, retired))
         self.networks_changed()
+        if isinstance(stacked, StackedTables):  # a table joins the stack, nothing stacked again
+            self._stacked = stacked.with_table(copied)
         return len(self.networks) - 1
 
     def pop(self) -> PolicyInfo:
@@ -164,8 +167,11 @@ class GPIPolicy(BatchedGPI):
         :raises ValueError: the set is empty
         """
         self._first()
+        stacked = self._stacked
         self.networks.pop()
         self.networks_changed()
+        if isinstance(stacked, StackedTables) and self.networks:
+            self._stacked = stacked.columns(list(range(len(self.networks))))
         return self.infos.pop()
 
     def retire(self, index: int, iteration: int | None) -> None:
@@ -178,10 +184,12 @@ class GPIPolicy(BatchedGPI):
     # --- selections ---------------------------------------------------------------------------------------
     def subset(self, indices: Iterable[int]) -> GPIPolicy:
         """A new set holding copies of the policies at ``indices``, in that order, with their infos."""
-        subset = GPIPolicy(device=self.device)
+        subset, indices = GPIPolicy(device=self.device), list(indices)
         for i in indices:
             info = self.infos[i]
             subset.add(self.networks[i], info.weights, info.value, info.agent, info.iteration, info.retired)
+        if isinstance(self._stacked, StackedTables) and indices:  # the tables' columns of this set's stack
+            subset._stacked = self._stacked.columns(indices)
         return subset
 
     def without(self, member: int) -> GPIPolicy:

@@ -38,17 +38,54 @@ class StackedTables:
 
     def __init__(self, networks: list[TabularSFNetwork]):
         first = networks[0]
-        self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
-        self.rows = first.rows
         tables = [net.table for net in networks]
         stored = np.unique(np.concatenate([table.stored_rows() for table in tables]))
-        self.stack_row_numpy = np.full(first.table.n_rows, len(stored), dtype=np.int32)
-        self.stack_row_numpy[stored] = np.arange(len(stored), dtype=np.int32)
-        stack = np.empty((len(stored) + 1, self.n_policies, first.table.width), dtype=np.float32)
+        stack_row = np.full(first.table.n_rows, len(stored), dtype=np.int32)
+        stack_row[stored] = np.arange(len(stored), dtype=np.int32)
+        stack = np.empty((len(stored) + 1, len(networks), first.table.width), dtype=np.float32)
         for i, table in enumerate(tables):  # by the stored rows: a copy in Π needs no slot map of its own
             stack[:, i] = table.default
             stack[np.searchsorted(stored, table.stored_rows()), i] = table.stored_values()
-        self.tables_numpy = stack.reshape(len(stored) + 1, -1)
+        self.rows, self.n_actions, self.reward_dim = first.rows, first.n_actions, first.reward_dim
+        self._set(stack_row, stack)
+
+    def _set(self, stack_row: np.ndarray, stack: np.ndarray) -> None:
+        """Hold ``stack`` ``(states + 1, P, A·d)``, its last state every table's default row, and ``stack_row``."""
+        self.n_policies, self.stack_row_numpy = stack.shape[1], stack_row
+        self.tables_numpy = stack.reshape(len(stack), -1)
+
+    def _like(self, stack_row: np.ndarray, stack: np.ndarray) -> StackedTables:
+        """A stack of tables of this one's spaces."""
+        stacked = copy.copy(self)
+        stacked._set(stack_row, stack)
+        return stacked
+
+    def _stack3d(self) -> np.ndarray:
+        return self.tables_numpy.reshape(len(self.tables_numpy), self.n_policies, -1)
+
+    def with_table(self, network: TabularSFNetwork) -> StackedTables:
+        """
+        The stack with ``network``'s table as one more policy (what stacking them all again holds, the states it
+        stored first seen appended): a copy of this stack instead of every table sorted and scattered again.
+        """
+        table, old = network.table, self._stack3d()
+        rows = table.stored_rows()
+        default_state = len(old) - 1
+        new_rows = rows[self.stack_row_numpy[rows] == default_state]
+        n_states = default_state + len(new_rows)
+        stack = np.empty((n_states + 1, self.n_policies + 1, old.shape[2]), dtype=np.float32)
+        stack[:default_state, :-1] = old[:-1]
+        stack[default_state:, :-1] = old[-1]  # the states new to the stack, and every other: the defaults
+        stack_row = self.stack_row_numpy.copy()
+        stack_row[stack_row == default_state] = n_states
+        stack_row[new_rows] = np.arange(default_state, n_states, dtype=np.int32)
+        stack[:, -1] = table.default
+        stack[stack_row[rows], -1] = table.stored_values()
+        return self._like(stack_row, stack)
+
+    def columns(self, members: list[int]) -> StackedTables:
+        """The stack of the policies ``members`` (in that order): the same states, their columns copied."""
+        return self._like(self.stack_row_numpy, self._stack3d()[:, members])
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         index = self.rows(obs_tensor.cpu().numpy(), check=False)

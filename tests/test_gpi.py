@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch as th
-from conftest import BAD_WEIGHTS
+from conftest import BAD_WEIGHTS, random_tabular_network
 from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -264,6 +264,31 @@ def test_tables_are_stored_and_stacked_by_their_learned_rows(tmp_path, make_rand
         q = np.max(each @ (np.array(w, dtype=np.float32) / np.sum(w)), axis=0)
         np.testing.assert_allclose(loaded.q_values(every_state, w), q, rtol=1e-6, atol=1e-6)
 
+
+
+@settings(max_examples=40, deadline=None)
+@given(data=st.data())
+def test_a_tabular_sets_stack_follows_its_changes_as_stacking_all_again_would(data):
+    """Adding a table extends the set's stack, popping one and taking a subset keep their columns (admission does
+    this for every policy it tries): ψ of every state is what a stack of the same tables built afresh gives."""
+    every_state = np.array([[i, j, k] for i in range(3) for j in range(4) for k in range(2)])  # MultiDiscrete([3, 4, 2])
+    policy_set = GPIPolicy()
+    for step in range(data.draw(st.integers(1, 8))):
+        operation = data.draw(st.sampled_from(["add", "add", "pop", "subset"]))
+        if operation == "add" or not len(policy_set):
+            net = random_tabular_network(step)
+            stored = data.draw(st.lists(st.integers(0, 23), unique=True, max_size=6))
+            table = net.table.dense()
+            net.table.set_rows(np.array(stored, dtype=np.int64), table[stored], table[23] * 0.5)
+            policy_set.add(net, weights=[1.0, 1.0, 1.0])
+        elif operation == "pop":
+            policy_set.pop()
+        else:
+            policy_set = policy_set.subset(data.draw(st.permutations(range(len(policy_set)))))
+        if len(policy_set):
+            kept = policy_set.successor_features(every_state)  # from the stack the set keeps up to date
+            policy_set.networks_changed()
+            np.testing.assert_array_equal(kept, policy_set.successor_features(every_state))  # stacked afresh
 
 def test_a_set_of_untrained_tables_acts(tmp_path, make_random_tabular):
     policy_set = GPIPolicy()
