@@ -171,7 +171,7 @@ class GPIPolicy(BatchedGPI):
         self.networks.pop()
         self.networks_changed()
         if isinstance(stacked, StackedTables) and self.networks:
-            self._stacked = stacked.columns(list(range(len(self.networks))))
+            self._stacked = stacked.without_last()
         return self.infos.pop()
 
     def retire(self, index: int, iteration: int | None) -> None:

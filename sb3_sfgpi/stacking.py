@@ -53,6 +53,7 @@ class StackedTables:
         """Hold ``stack`` ``(states + 1, P, A·d)``, its last state every table's default row, and ``stack_row``."""
         self.n_policies, self.stack_row_numpy = stack.shape[1], stack_row
         self.tables_numpy = stack.reshape(len(stack), -1)
+        self._before_last: StackedTables | None = None  # what :meth:`with_table` extended
 
     def _like(self, stack_row: np.ndarray, stack: np.ndarray) -> StackedTables:
         """A stack of tables of this one's spaces."""
@@ -81,11 +82,19 @@ class StackedTables:
         stack_row[new_rows] = np.arange(default_state, n_states, dtype=np.int32)
         stack[:, -1] = table.default
         stack[stack_row[rows], -1] = table.stored_values()
-        return self._like(stack_row, stack)
+        extended = self._like(stack_row, stack)
+        extended._before_last, self._before_last = self, None  # one level kept: a new policy tried, then taken out
+        return extended
+
+    def without_last(self) -> StackedTables:
+        """The stack without its last policy: the one :meth:`with_table` extended, else its other columns."""
+        if self._before_last is not None:
+            return self._before_last
+        return self.columns(list(range(self.n_policies - 1)))
 
     def columns(self, members: list[int]) -> StackedTables:
         """The stack of the policies ``members`` (in that order): the same states, their columns copied."""
-        return self._like(self.stack_row_numpy, self._stack3d()[:, members])
+        return self._like(self.stack_row_numpy, self._stack3d().take(members, axis=1))
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         index = self.rows(obs_tensor.cpu().numpy(), check=False)

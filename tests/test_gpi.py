@@ -265,13 +265,12 @@ def test_tables_are_stored_and_stacked_by_their_learned_rows(tmp_path, make_rand
         np.testing.assert_allclose(loaded.q_values(every_state, w), q, rtol=1e-6, atol=1e-6)
 
 
-
 @settings(max_examples=40, deadline=None)
 @given(data=st.data())
 def test_a_tabular_sets_stack_follows_its_changes_as_stacking_all_again_would(data):
     """Adding a table extends the set's stack, popping one and taking a subset keep their columns (admission does
     this for every policy it tries): ψ of every state is what a stack of the same tables built afresh gives."""
-    every_state = np.array([[i, j, k] for i in range(3) for j in range(4) for k in range(2)])  # MultiDiscrete([3, 4, 2])
+    every_state = np.array([[i, j, k] for i in range(3) for j in range(4) for k in range(2)])  # MultiDiscrete 3, 4, 2
     policy_set = GPIPolicy()
     for step in range(data.draw(st.integers(1, 8))):
         operation = data.draw(st.sampled_from(["add", "add", "pop", "subset"]))
@@ -289,6 +288,7 @@ def test_a_tabular_sets_stack_follows_its_changes_as_stacking_all_again_would(da
             kept = policy_set.successor_features(every_state)  # from the stack the set keeps up to date
             policy_set.networks_changed()
             np.testing.assert_array_equal(kept, policy_set.successor_features(every_state))  # stacked afresh
+
 
 def test_a_set_of_untrained_tables_acts(tmp_path, make_random_tabular):
     policy_set = GPIPolicy()
