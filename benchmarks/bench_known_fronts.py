@@ -45,11 +45,11 @@ from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_
 from benchmarks._common import MORL_MISSING, Row
 from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli.gym_domains import (
-    MLP_ADMISSION,
     MLP_LEARNER,
-    TABULAR_ADMISSION,
+    MLP_RUN,
     TABULAR_LEARNER,
     TABULAR_POOL_REPLAY,
+    TABULAR_RUN,
     gym_preset,
 )
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
@@ -215,7 +215,7 @@ def _train_sfols(
     masfols = MASFOLS(
         _make_env(problem), policy=policy, steps_per_iteration=steps, learner_kwargs=learner,
         value_episodes=preset["value_episodes"],
-        **(TABULAR_ADMISSION if problem.tabular else MLP_ADMISSION),
+        **(TABULAR_RUN if problem.tabular else MLP_RUN),
         pool_replay=problem.tabular and TABULAR_POOL_REPLAY,
         test_weights=weights, eval_episodes=problem.eval_episodes, seed=seed,
         verbose=0 if problem.tabular else 1,  # a line per iteration of the hour-long deep runs

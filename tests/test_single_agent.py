@@ -121,6 +121,7 @@ def test_the_command_line_trains_a_deep_id_with_one_conditioned_learner_and_resu
     config = json.loads((out / "run.json").read_text())
     assert config["policy"] == "ConditionedMlpPolicy" and config["learner_kwargs"]["exploration_steps"] == 50_000
     assert config["prune"] and config["learner_kwargs"]["buffer_size"] == 200_000  # not cut
+    assert config["episode_weights"] == "support"  # each episode acts for a weight of the support
     assert gym_preset("minecart-v0")["validation_weights"] == 50
     assert [p.name for p in (out / "learners").iterdir()] == ["iteration_001.pt"]
     resumed = ["train", "minecart-v0", "--iterations", "2", *short, "--out", str(out), "--resume", "--no-progress"]

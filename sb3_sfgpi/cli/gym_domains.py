@@ -64,12 +64,15 @@ MLP_LEARNER = {
     "exploration_steps": 50_000,
 }
 
-#: Admission of tables: a new policy joins Π only if GPI does no worse with it on 50 validation weights.
-TABULAR_ADMISSION = {"validation_weights": 50, "prune": False}
-#: Admission of deep learners: a member of Π is the conditioned network as it was when it joined; it joins only if GPI
-#: does no worse with it on 50 validation weights, and members GPI does better without retire (measured against
-#: members that follow the learner's latest network on minecart: docs, experiments/levers).
-MLP_ADMISSION = {"validation_weights": 50, "prune": True}
+#: The run settings of tables besides their learner's: a new policy joins Π only if GPI does no worse with it on 50
+#: validation weights.
+TABULAR_RUN = {"validation_weights": 50, "prune": False}
+#: The run settings of deep learners besides their learner's: a member of Π is the conditioned network as it was when
+#: it joined; it joins only if GPI does no worse with it on 50 validation weights, and members GPI does better without
+#: retire (measured against members that follow the learner's latest network on minecart); every episode acts, and
+#: trains its half of each minibatch, for a weight drawn from the learner's support, GPI-LS's behaviour (measured on
+#: minecart and deep-sea-treasure with MLP SFs: docs, experiments/levers).
+MLP_RUN = {"validation_weights": 50, "prune": True, "episode_weights": "support"}
 
 
 def make_gym_env(env_id: str, **env_kwargs: Any) -> SingleAgentParallelEnv:
@@ -104,7 +107,7 @@ def gym_preset(env_id: str) -> dict[str, Any] | None:
         "n_test_weights": 50,
         "value_episodes": 5,
         "eval_episodes": 5 if tabular else 1,  # deep episodes run to the time limit while a policy idles
-        **(TABULAR_ADMISSION if tabular else MLP_ADMISSION),
+        **(TABULAR_RUN if tabular else MLP_RUN),
         "pool_replay": tabular and TABULAR_POOL_REPLAY,
         "objectives": [f"objective {i}" for i in range(reward_dim)],
         "run_file_env_kwargs": [],  # a run file sets no env argument of an arbitrary env
