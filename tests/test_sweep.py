@@ -120,23 +120,46 @@ def uninterrupted(tmp_path_factory):
     return train_run(KILLED_SWEEP[0], tmp_path_factory.mktemp("uninterrupted") / "run")
 
 
+def _sweep_into(outcomes: list, specs: list[RunSpec], out: Path, shared_filesystem: bool) -> None:
+    outcomes.extend(run_sweep(specs, out, progress_bar=False, shared_filesystem=shared_filesystem))
+
+
+def _killed_in_its_second_iteration(sweep: threading.Thread, run_dir: Path) -> dict | None:
+    """
+    Kill the run once its first checkpoint is in ``run_dir`` (sent home, without a shared filesystem: up to
+    ``SHIP_SECONDS`` after it was written) while it is still in its second iteration where it works; its attempt, or
+    None where it had gone past that (the kill would have missed it).
+    """
+    while not (run_dir / "checkpoint.json").is_file():
+        assert sweep.is_alive(), "the sweep ended before the run could be killed"
+        time.sleep(0.02)
+    attempt = json.loads((run_dir / "sweep.json").read_text())["attempts"][-1]
+    try:
+        iterations = len(json.loads((Path(attempt["dir"]) / "evaluation.json").read_text()))
+    except FileNotFoundError:  # its folder on the node is gone: the run ended
+        return None
+    if iterations != 1:
+        return None
+    os.kill(attempt["pid"], signal.SIGKILL)
+    return attempt
+
+
 @pytest.mark.parametrize("shared_filesystem", [True, False])
 def test_a_killed_run_is_retried_and_ends_as_if_it_had_not_been_killed(
     tmp_path, local_ray, uninterrupted, shared_filesystem
 ):
     specs, target = KILLED_SWEEP, KILLED_SWEEP[0]
-    out = tmp_path / "sweep"
-    outcomes: list = []
-    sweep = threading.Thread(
-        target=lambda: outcomes.extend(run_sweep(specs, out, progress_bar=False, shared_filesystem=shared_filesystem))
-    )
-    sweep.start()
-    run_dir = out / target.run_name
-    while not (run_dir / "checkpoint.json").is_file():  # the target finished its first iteration of 2 (and sent it)
-        assert sweep.is_alive(), "the sweep ended before the run could be killed"
-        time.sleep(0.02)
-    attempt = json.loads((run_dir / "sweep.json").read_text())["attempts"][-1]
-    os.kill(attempt["pid"], signal.SIGKILL)
+    for tries in range(3):  # a run that ended before the kill could land is swept again
+        out, outcomes = tmp_path / f"sweep{tries}", []
+        sweep = threading.Thread(target=_sweep_into, args=(outcomes, specs, out, shared_filesystem))
+        sweep.start()
+        run_dir = out / target.run_name
+        attempt = _killed_in_its_second_iteration(sweep, run_dir)
+        if attempt is not None:
+            break
+        sweep.join(timeout=600)
+    else:
+        pytest.fail("the run ended before it could be killed, three times")
     if not shared_filesystem:  # the run worked in a folder of its node: the node is lost with it
         assert out not in Path(attempt["dir"]).parents
         shutil.rmtree(Path(attempt["dir"]).parent)
