@@ -182,7 +182,7 @@ def gpi_attaining(
 ) -> None:
     """
     GPI's action of each observation over stacked tables, and the members that attain its value, with numpy's bits
-    (:meth:`~sb3_sfgpi.gpi_decisions.GPIPredictor.predict_attaining`): each member's ``w · ψ(s, a)`` as
+    (:meth:`~sb3_sfgpi.gpi_decisions.BatchedGPI.predict_attaining`): each member's ``w · ψ(s, a)`` as
     :func:`weighted_value`, ``-inf`` for the member left out and the actions not allowed, the maximum over members
     (NaN if one is NaN), the first action of the largest such value (or the first NaN), and the members whose value
     of it equals that maximum.
