@@ -94,17 +94,31 @@ def _runs_decisions(
     masks = _masks_of([Decisions(s[0], s[1], s[2], []) for s in steps], n_actions)
     patterns, pattern_of = distinct_columns(np.concatenate([s[3] for s in steps], axis=1))
     episode_of = np.concatenate([s[4] for s in steps])
+    followed = _followed_by_group(patterns, pattern_of, episode_of // episodes, n_runs)
     order = np.argsort(episode_of, kind="stable")  # episode by episode, each in step order
     bounds = np.searchsorted(episode_of[order], np.arange(n_runs + 1) * episodes).tolist()
     runs = []
-    for start, stop in zip(bounds[:-1], bounds[1:], strict=True):
+    for run, start, stop in zip(followed, bounds[:-1], bounds[1:], strict=True):
         rows = order[start:stop]
         if not len(rows):
             runs.append((frozenset(), NO_DECISIONS))
             continue
-        followed = frozenset(patterns[i] for i in np.unique(pattern_of[rows]).tolist())
-        runs.append((followed, (observations[rows], None if masks is None else masks[rows], actions[rows])))
+        runs.append((run, (observations[rows], None if masks is None else masks[rows], actions[rows])))
     return runs
+
+
+def _followed_by_group(
+    patterns: list[frozenset[int]], pattern_of: np.ndarray, group_of: np.ndarray, n_groups: int
+) -> list[frozenset[frozenset[int]]]:
+    """
+    The sets of members followed in each group of decisions, from :func:`~sb3_sfgpi.gpi_decisions.distinct_columns`'
+    sets and each decision's set (``pattern_of``) and group (``group_of``, in ``0..n_groups-1``): one pass for all.
+    """
+    pairs = np.unique(group_of * len(patterns) + pattern_of)  # each (group, set) once
+    followed: list[list[frozenset[int]]] = [[] for _ in range(n_groups)]
+    for group, k in zip((pairs // len(patterns)).tolist(), (pairs % len(patterns)).tolist(), strict=True):
+        followed[group].append(patterns[k])
+    return [frozenset(sets) for sets in followed]
 
 
 @lru_cache(maxsize=1 << 14)
@@ -176,25 +190,17 @@ class ValidationScorer:
     ) -> tuple[dict[int, np.ndarray], dict[int, frozenset[frozenset[int]]]]:
         """GPI over ``policy_set`` on the decisions of the weights ``decided``, in one batch: its actions and the
         members it followed, per weight."""
-        observations, masks, actions = zip(*(scored.decisions[i] for i in decided), strict=True)
-        lengths = [len(a) for a in actions]
-        n_actions = policy_set.action_space.n
-        if all(m is None for m in masks):
-            batch_masks = None
-        else:
-            batch_masks = np.concatenate(
-                [np.ones((n, n_actions), dtype=bool) if m is None else m for n, m in zip(lengths, masks, strict=True)]
-            )
+        trace = [Decisions(*scored.decisions[i], []) for i in decided]
+        lengths = [len(step.actions) for step in trace]
+        masks = _masks_of(trace, policy_set.action_space.n)
         rows = np.repeat(self.weights[decided], lengths, axis=0)
-        again, attaining = policy_set.predict_attaining(np.concatenate(observations), rows, batch_masks, per_row=True)
+        observations = np.concatenate([step.observations for step in trace])
+        again, attaining = policy_set.predict_attaining(observations, rows, masks, per_row=True)
         patterns, pattern_of = distinct_columns(attaining)
+        followed = _followed_by_group(patterns, pattern_of, np.repeat(np.arange(len(decided)), lengths), len(decided))
         bounds = np.cumsum([0, *lengths]).tolist()
         actions_of = {i: again[start:stop] for i, start, stop in zip(decided, bounds[:-1], bounds[1:], strict=True)}
-        pairs = np.unique(np.repeat(np.arange(len(decided)), lengths) * len(patterns) + pattern_of)  # (weight, set)
-        members_of: dict[int, list[frozenset[int]]] = {i: [] for i in decided}
-        for position, k in zip((pairs // len(patterns)).tolist(), (pairs % len(patterns)).tolist(), strict=True):
-            members_of[decided[position]].append(patterns[k])
-        return actions_of, {i: frozenset(sets) for i, sets in members_of.items()}
+        return actions_of, dict(zip(decided, followed, strict=True))
 
     def without(self, policy_set: GPIPolicy, scored: Scored, member: int) -> Scored:
         """

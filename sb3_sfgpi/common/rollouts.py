@@ -294,8 +294,8 @@ def _batched_results(
     """Each ``per_result`` consecutive episodes' returns of the agents that started in one of them (of batched
     episodes: ``started`` ``(episodes, agents)``, returns ``(episodes, agents, d)``)."""
     shape = (len(started) // per_result, per_result, len(agents))
-    started_in, every = started.reshape(shape), started.reshape(shape).all(axis=1).tolist()
-    present = started_in.any(axis=1).tolist()
+    started_in = started.reshape(shape)
+    every, present = started_in.all(axis=1).tolist(), started_in.any(axis=1).tolist()
     by_result = [returns.reshape(*shape, -1) for returns in (discounted, total)]
     results = []
     for r in range(shape[0]):

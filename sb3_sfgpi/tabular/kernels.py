@@ -123,16 +123,35 @@ def epsilon_greedy(
 
 
 @njit(cache=True, nogil=True)
+def _numpy_max(values: np.ndarray) -> float:
+    """numpy's ``max`` of a 1-D array: NaN where a value is NaN (a loop: no reduction's error message to compile)."""
+    best = values[0]
+    for k in range(1, values.shape[0]):
+        if not np.isnan(best) and (np.isnan(values[k]) or values[k] > best):
+            best = values[k]
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _numpy_argmax(values: np.ndarray) -> int:
+    """numpy's ``argmax`` of a 1-D array: the first largest value, or the first NaN."""
+    chosen = 0
+    for k in range(1, values.shape[0]):
+        if np.isnan(values[chosen]):
+            break
+        if np.isnan(values[k]) or values[k] > values[chosen]:
+            chosen = k
+    return chosen
+
+
+@njit(cache=True, nogil=True)
 def _greedy_random_ties(values: np.ndarray, key: np.ndarray, position: np.ndarray, actions: np.ndarray) -> None:
     """:func:`~sb3_sfgpi.sfdqn.networks.argmax_random_ties` on numpy's global generator: the same draws."""
     n, n_actions = values.shape
     best = np.empty(n, dtype=values.dtype)
     n_best = 0
     for i in range(n):
-        best[i] = values[i, 0]  # the row's maximum, NaN where a value is NaN, as numpy's (a loop: no reduction's
-        for a in range(1, n_actions):  # error message to compile)
-            if not np.isnan(best[i]) and (np.isnan(values[i, a]) or values[i, a] > best[i]):
-                best[i] = values[i, a]
+        best[i] = _numpy_max(values[i])
         for a in range(n_actions):
             if values[i, a] == best[i]:
                 n_best += 1
@@ -208,16 +227,8 @@ def gpi_attaining(
                 if p == left_out[b] or (allowed.shape[0] > 0 and not allowed[b, a]):
                     q[p, a] = -np.inf
         for a in range(n_actions):
-            best[a] = q[0, a]
-            for p in range(1, n_policies):
-                if not np.isnan(best[a]) and (np.isnan(q[p, a]) or q[p, a] > best[a]):
-                    best[a] = q[p, a]
-        chosen = 0
-        for a in range(1, n_actions):
-            if np.isnan(best[chosen]):
-                break
-            if np.isnan(best[a]) or best[a] > best[chosen]:
-                chosen = a
+            best[a] = _numpy_max(q[:, a])
+        chosen = _numpy_argmax(best)
         actions[b] = chosen
         for p in range(n_policies):
             attaining[p, b] = q[p, chosen] == best[chosen]
