@@ -313,13 +313,19 @@ class FourRoomParallelEnv(ParallelEnv):
         (:class:`~sfgpi_envs.four_room_dynamics.PackedDynamics`): the step, the constant model and the current
         episode's state; :meth:`restore_packed_state` makes the env continue from a state the step advanced.
         """
-        from sfgpi_envs.four_room_dynamics import PackedDynamics, pack_model, pack_state, packed_step
+        from sfgpi_envs.four_room_dynamics import (
+            PackedDynamics,
+            pack_model,
+            pack_state,
+            packed_episode_step,
+            packed_step,
+        )
 
         live = [agent in self.agents for agent in self.possible_agents]
         mode = OBSERVATION_MODES.index(self.observation_mode)
         model = pack_model(LAYOUT, len(self.possible_agents), self.max_steps, mode)
         state = pack_state(self._t, self._cells, live, self._present, self._collected)
-        return PackedDynamics(packed_step, model, self.goal_reward.copy(), state)
+        return PackedDynamics(packed_step, packed_episode_step, model, self.goal_reward.copy(), state)
 
     def restore_packed_state(self, state: np.ndarray) -> None:
         """Continue from a packed state of :meth:`packed_dynamics` (as the packed step left it)."""

@@ -178,6 +178,7 @@ class PackedDynamics(NamedTuple):
     """An env's step compiled over a packed state (the arguments of :func:`packed_step` an env gives)."""
 
     step: Any  #: the compiled step, of signature :data:`PACKED_STEP_SIGNATURE`
+    episode_step: Any  #: the compiled step with episode ends (:func:`packed_episode_step`), of that signature too
     model: np.ndarray  #: int64: what never changes (layout, settings)
     constants: np.ndarray  #: float32: rewards the step gives
     state: np.ndarray  #: int64: the episode's state now
@@ -192,6 +193,61 @@ PACKED_STEP_SIGNATURE = types.int64(
 _AGENTS, _OBJECTS, _CELLS, _GOAL, _LIMIT, _MODE, _TABLES = range(7)
 #: Observation modes as the packed model names them (the env's ``OBSERVATION_MODES`` order).
 _XY, _OWN, _FULL = range(3)
+
+
+@njit(PACKED_STEP_SIGNATURE, cache=True, nogil=True)
+def packed_episode_step(
+    model: np.ndarray,
+    constants: np.ndarray,
+    state: np.ndarray,
+    actions: np.ndarray,
+    observations: np.ndarray,
+    rewards: np.ndarray,
+) -> int:
+    """
+    The env's ``step`` on a packed state, episode ends included (for compiled rollouts that run whole episodes): every
+    live agent moves, in agent order; an agent entering the goal gets its reward and is terminated, and at the step
+    limit every live agent is truncated. The arguments are :func:`packed_step`'s.
+
+    :return: the agents live after the step, as bits (agent ``i``: ``1 << i``); 0: the episode is over
+    """
+    m, k, n_cells = model[_AGENTS], model[_OBJECTS], model[_CELLS]
+    next_cell = model[_TABLES : _TABLES + 4 * n_cells]
+    object_at = model[_TABLES + 4 * n_cells : _TABLES + 5 * n_cells]
+    object_type = model[_TABLES + 5 * n_cells : _TABLES + 5 * n_cells + k]
+    xy = model[_TABLES + 5 * n_cells + k :]
+    cells, live, present, collected = (
+        state[1 : 1 + m],
+        state[1 + m : 1 + 2 * m],
+        state[1 + 2 * m : 1 + 2 * m + k],
+        state[1 + 2 * m + k :],
+    )
+    state[0] += 1
+    for i in range(m):
+        if not live[i]:
+            continue
+        cells[i] = next_cell[4 * cells[i] + actions[i]]
+        rewards[i, :] = 0.0
+        if cells[i] == model[_GOAL]:
+            live[i] = 0  # terminated
+            for j in range(constants.shape[0]):
+                rewards[i, j] = constants[j]
+            continue
+        j = object_at[cells[i]]
+        if j >= 0 and present[j]:
+            present[j] = 0
+            collected[i * k + j] = 1
+            rewards[i, object_type[j]] = 1.0
+    live_after = 0
+    for i in range(m):
+        if state[0] >= model[_LIMIT]:
+            live[i] = 0  # truncated
+        if live[i]:
+            live_after |= 1 << i
+            observations[i, 0], observations[i, 1] = xy[2 * cells[i]], xy[2 * cells[i] + 1]
+            for j in range(observations.shape[1] - 2):
+                observations[i, 2 + j] = collected[i * k + j] if model[_MODE] == _OWN else 1 - present[j]
+    return live_after
 
 
 @njit(PACKED_STEP_SIGNATURE, cache=True, nogil=True)
@@ -215,38 +271,14 @@ def packed_step(
     :param observations: written: each live agent's observation after the step
     :param rewards: written: each live agent's reward
     """
-    m, k, n_cells = model[_AGENTS], model[_OBJECTS], model[_CELLS]
+    m, n_cells = model[_AGENTS], model[_CELLS]
     next_cell = model[_TABLES : _TABLES + 4 * n_cells]
-    object_at = model[_TABLES + 4 * n_cells : _TABLES + 5 * n_cells]
-    object_type = model[_TABLES + 5 * n_cells : _TABLES + 5 * n_cells + k]
-    xy = model[_TABLES + 5 * n_cells + k :]
-    cells, live, present, collected = (
-        state[1 : 1 + m],
-        state[1 + m : 1 + 2 * m],
-        state[1 + 2 * m : 1 + 2 * m + k],
-        state[1 + 2 * m + k :],
-    )
     if state[0] + 1 >= model[_LIMIT]:
         return 1  # every live agent is truncated
     for i in range(m):
-        if live[i] and next_cell[4 * cells[i] + actions[i]] == model[_GOAL]:
+        if state[1 + m + i] and next_cell[4 * state[1 + i] + actions[i]] == model[_GOAL]:
             return 1
-    state[0] += 1
-    for i in range(m):
-        if not live[i]:
-            continue
-        cells[i] = next_cell[4 * cells[i] + actions[i]]
-        rewards[i, :] = 0.0
-        j = object_at[cells[i]]
-        if j >= 0 and present[j]:
-            present[j] = 0
-            collected[i * k + j] = 1
-            rewards[i, object_type[j]] = 1.0
-    for i in range(m):
-        if live[i]:
-            observations[i, 0], observations[i, 1] = xy[2 * cells[i]], xy[2 * cells[i] + 1]
-            for j in range(observations.shape[1] - 2):
-                observations[i, 2 + j] = collected[i * k + j] if model[_MODE] == _OWN else 1 - present[j]
+    packed_episode_step(model, constants, state, actions, observations, rewards)  # it ends no episode
     return 0
 
 

@@ -156,7 +156,13 @@ class OLSCallback(BaseCallback):
         validation_weights = self.admission.weights(runner.reward_dim, runner.seed)
         self.admission.start(
             ValidationScorer(
-                validation_weights, runner.rollout, self.admission.episodes, runner.seed, "validation", runner.lockstep
+                validation_weights,
+                runner.rollout,
+                self.admission.episodes,
+                runner.seed,
+                "validation",
+                runner.lockstep,
+                runner.gpi_episodes,
             )
         )
         self.schedule.start(runner.reward_dim)

@@ -29,6 +29,9 @@ Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
 #: Runs episodes for many weights together, one batched decision a step, where it can (else None): ``lockstep(policy,
 #: weights, seeds, per_result, decided=None)`` (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.lockstep`).
 Lockstep = Callable[..., list[EpisodeReturns] | None]
+#: Runs GPI's episodes over a set of tables in one compiled call where it can (else None): ``gpi_episodes(policy_set,
+#: weights, left_out, seeds, per_result)`` (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.gpi_episodes`).
+GPIEpisodesRunner = Callable[..., Any]
 
 
 def summarize_test_episodes(

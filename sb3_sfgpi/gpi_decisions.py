@@ -70,6 +70,11 @@ class BatchedGPI(ABC):
             self._stacked = stack_networks(self.networks)
         return self._stacked
 
+    def stacked_tables(self) -> StackedTables | None:
+        """The set's tables stacked, where it is a set of tables on the CPU (what compiled GPI reads), else None."""
+        stacked = self._stack()
+        return stacked if isinstance(stacked, StackedTables) and self.device.type == "cpu" else None
+
     def _psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         """``ψ`` of every policy, shape ``(n_policies, batch, n_actions, d)``, in one batched pass."""
         with th.no_grad():
@@ -212,8 +217,8 @@ class BatchedGPI(ABC):
         obs, _ = self._obs_to_array(observation)
         if per_row:
             _check_one_weight_per_row(weights[0], obs)
-        stacked = self._stack()
-        if isinstance(stacked, StackedTables) and self.device.type == "cpu":  # one compiled call
+        stacked = self.stacked_tables()
+        if stacked is not None:  # one compiled call
             index = stacked.rows(obs)  # raises ValueError for an observation outside the space
             return stacked.attaining(
                 index, weights[2], left_out, checked_masks(action_masks, len(obs), self.action_space.n)

@@ -9,7 +9,7 @@ behaves like an SB3 algorithm towards a runner-level callback (e.g. :class:`~sb3
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -39,6 +39,7 @@ from sb3_sfgpi.common.rollouts import (
 )
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import SAME_WEIGHT
+from sb3_sfgpi.compiled_episodes import PackedStarts, compiled_gpi_episodes
 from sb3_sfgpi.compiled_steps import CompiledSteps, PendingStep, compiled_steps
 from sb3_sfgpi.episode_weights import EpisodeWeights
 from sb3_sfgpi.learners import (
@@ -55,6 +56,10 @@ from sb3_sfgpi.ols import unique_points
 from sb3_sfgpi.run_settings import EPISODE_WEIGHTS, SHARED, SHARINGS
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.training_state import restore_training_state
+
+if TYPE_CHECKING:
+    from sb3_sfgpi.gpi import GPIPolicy
+    from sb3_sfgpi.tabular.gpi_episodes import GPIEpisodes
 
 
 class MultiAgentRunner:
@@ -149,6 +154,7 @@ class MultiAgentRunner:
         self._masks: dict[tuple[int, str], np.ndarray | None] = {}
         self._episode_steps = [0] * n_envs
         self._side_by_side = SideBySide(env, env_fn, env_kwargs)  # copies for :meth:`lockstep`
+        self._packed_starts: PackedStarts | None = None  # episode starts for :meth:`gpi_episodes`
         self.learners: dict[str, SFDQN] = {}
         self._learner_callbacks: dict[str, BaseCallback] = {}
         self._gamma = gamma
@@ -417,6 +423,23 @@ class MultiAgentRunner:
             self.env.reset(seed=seeds[-1])  # seeded as the last episode would have left it (its action spaces)
         self._after_rollout()
         return returns
+
+    def gpi_episodes(
+        self, policy_set: GPIPolicy, weights: np.ndarray, left_out: np.ndarray, seeds: list[int], per_result: int = 1
+    ) -> tuple[list[EpisodeReturns], GPIEpisodes] | None:
+        """
+        GPI's episodes over a set of tables in one compiled call where the env allows it
+        (:func:`~sb3_sfgpi.compiled_episodes.compiled_gpi_episodes`): the returns :meth:`lockstep` gives for GPI over
+        ``policy_set`` (each episode for its weights, without its member ``left_out``, ``-1``: none) and every
+        decision; else None. The shared env is left as :meth:`lockstep` leaves it.
+        """
+        if self._packed_starts is None:
+            self._packed_starts = PackedStarts(self.env)
+        ran = compiled_gpi_episodes(self._packed_starts, policy_set, weights, left_out, seeds, self.gamma, per_result)
+        if ran is not None:
+            self.env.reset(seed=seeds[-1])
+            self._after_rollout()
+        return ran
 
     def _after_rollout(self) -> None:
         """Where training runs on the shared env (``n_envs=1``), start it on a fresh episode."""

@@ -23,7 +23,7 @@ import numpy as np
 
 from sb3_sfgpi.common.rollouts import EpisodeReturns
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.evaluation import Lockstep, Rollout, mean_return
+from sb3_sfgpi.evaluation import GPIEpisodesRunner, Lockstep, Rollout, mean_return
 from sb3_sfgpi.gpi import Decisions, GPIPolicy
 from sb3_sfgpi.gpi_decisions import distinct_columns
 from sb3_sfgpi.tabular.network import TabularSFNetwork
@@ -143,6 +143,8 @@ class ValidationScorer:
     :param lockstep: runs the episodes of several weights together, one batched GPI decision a step, where it can
         (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.lockstep`): the same episodes and decisions as one weight after
         another
+    :param gpi_episodes: runs GPI's episodes over a set of tables in one compiled call where it can
+        (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.gpi_episodes`): the same episodes and decisions again
     """
 
     def __init__(
@@ -153,9 +155,10 @@ class ValidationScorer:
         seed: int,
         purpose: str = "validation",
         lockstep: Lockstep | None = None,
+        gpi_episodes: GPIEpisodesRunner | None = None,
     ):
         self.weights = np.asarray(weights, dtype=np.float64)
-        self.rollout, self.episodes, self.lockstep = rollout, episodes, lockstep
+        self.rollout, self.episodes, self.lockstep, self.gpi_episodes = rollout, episodes, lockstep, gpi_episodes
         self.seeds = [derive_seed(seed, purpose, i) for i in range(len(self.weights))]
         #: weights rolled out so far (one call of ``rollout`` each)
         self.rollouts = 0
@@ -218,7 +221,7 @@ class ValidationScorer:
         """
         pairs = [(member, i) for member in range(len(policy_set)) for i in scored.decisive(member)]
         together = None
-        if self.lockstep is not None and len(pairs) > 1:
+        if self._runs_together and len(pairs) > 1:
             together = self._together(policy_set, [i for _, i in pairs], [member for member, _ in pairs])
         if together is None:
             return [self.without(policy_set, scored, member) for member in range(len(policy_set))]
@@ -242,42 +245,63 @@ class ValidationScorer:
 
     def _runs(self, policy_set: GPIPolicy, indices: list[int]) -> list[Run]:
         """The episodes of the weights ``indices``: together where the runner can, else one weight after another."""
-        together = self._together(policy_set, indices) if self.lockstep is not None and len(indices) > 1 else None
+        together = self._together(policy_set, indices) if self._runs_together and len(indices) > 1 else None
         return together if together is not None else [self._episodes(policy_set, i) for i in indices]
+
+    @property
+    def _runs_together(self) -> bool:
+        """Whether the runner can run several weights' episodes together (compiled or in lockstep)."""
+        return self.lockstep is not None or self.gpi_episodes is not None
 
     def _together(
         self, policy_set: GPIPolicy, indices: list[int], left_out: list[int] | None = None
     ) -> list[Run] | None:
         """
-        Every weight's episodes stepped together, each decision traced to its episode (None: the runner cannot).
+        Every weight's episodes run together, each decision traced to its episode: in one compiled call where the
+        runner can (:data:`~sb3_sfgpi.evaluation.GPIEpisodesRunner`), else stepped in lockstep; None: neither.
 
         :param left_out: for each weight of ``indices``, a member GPI acts without in its episodes (their members
             followed in the set's indices, the member left out never among them), or None: the whole set
         """
         n = self.episodes
-        steps: list[tuple[Any, ...]] = []  # per decision step: observations, masks, actions, members followed, episodes
+        seeds = [self.seeds[i] + episode for i in indices for episode in range(n)]
+        weights = np.repeat(self.weights[indices], n, axis=0)
+        without = np.repeat(np.asarray([-1] * len(indices) if left_out is None else left_out, dtype=np.int64), n)
+        ran = None if self.gpi_episodes is None else self.gpi_episodes(policy_set, weights, without, seeds, n)
+        if ran is not None:
+            returns, episodes = ran
+            steps = [(episodes.observations, None, episodes.actions, episodes.attaining, episodes.episodes)]
+        else:
+            returns, steps = self._stepped_together(policy_set, weights, without, seeds)
+            if returns is None:
+                return None
+        self.rollouts += len(indices)
+        decisions = _runs_decisions(steps, len(indices), n, policy_set.action_space.n)
+        return [(result, *decided) for result, decided in zip(returns, decisions, strict=True)]
+
+    def _stepped_together(
+        self, policy_set: GPIPolicy, weights: np.ndarray, left_out: np.ndarray, seeds: list[int]
+    ) -> tuple[list[EpisodeReturns] | None, list[tuple[Any, ...]]]:
+        """The episodes in the runner's lockstep, one batched GPI decision a step: the returns and the decision steps
+        (observations, masks, actions, members attaining GPI's value and each row's episode)."""
+        steps: list[tuple[Any, ...]] = []
         last: list[Any] = []
+        if self.lockstep is None:
+            return None, steps
 
         def act(obs: np.ndarray, rows: np.ndarray, masks: np.ndarray | None, _: list[str]) -> np.ndarray:
-            # each row's weights, then (with members left out) the member it acts without, as a last column
-            weights, without = (rows, None) if left_out is None else (rows[:, :-1], rows[:, -1].astype(np.int64))
-            actions, attaining = policy_set.predict_attaining(obs, weights, masks, per_row=True, left_out=without)
+            # each row's weights, then the member it acts without as a last column
+            without = rows[:, -1].astype(np.int64)
+            actions, attaining = policy_set.predict_attaining(obs, rows[:, :-1], masks, per_row=True, left_out=without)
             last[:] = [obs, masks, actions, attaining]
             return actions
 
         def decided(episodes: list[int]) -> None:
             steps.append((*last, np.asarray(episodes, dtype=np.int64)))
 
-        seeds = [self.seeds[i] + episode for i in indices for episode in range(n)]
-        weights = np.repeat(self.weights[indices], n, axis=0)
-        if left_out is not None:
-            weights = np.column_stack([weights, np.repeat(np.asarray(left_out, dtype=np.float64), n)])
-        returns = self.lockstep(act, weights, seeds, n, decided)  # type: ignore[misc]
-        if returns is None:
-            return None
-        self.rollouts += len(indices)
-        decisions = _runs_decisions(steps, len(indices), n, policy_set.action_space.n)
-        return [(result, *decided) for result, decided in zip(returns, decisions, strict=True)]
+        rows = np.column_stack([weights, left_out.astype(np.float64)])
+        returns = self.lockstep(act, rows, seeds, self.episodes, decided)  # type: ignore[misc]
+        return returns, steps
 
     def _episodes(self, policy_set: GPIPolicy, i: int) -> Run:
         trace: list[Decisions] = []

@@ -157,7 +157,7 @@ def test_the_packed_step_is_the_envs_step_until_an_episode_ends(mode, max_steps,
             rewards = np.zeros((2, 3), dtype=np.float32)
             ended = dynamics.step(dynamics.model, dynamics.constants, dynamics.state, chosen, observations, rewards)
             obs, reward, terminated, truncated, _ = env.step(actions)
-            assert ended == any(terminated.values()) or any(truncated.values())
+            assert ended == (any(terminated.values()) or any(truncated.values()))
             if ended:
                 assert np.array_equal(dynamics.state, before)
                 packed.step(actions)
@@ -170,3 +170,33 @@ def test_the_packed_step_is_the_envs_step_until_an_episode_ends(mode, max_steps,
             assert packed.agents == env.agents
             assert np.array_equal(packed.packed_dynamics().state, env.packed_dynamics().state)
             assert all(np.array_equal(packed._observe(i), env._observe(i)) for i in range(2))
+
+
+@settings(max_examples=30, deadline=None)
+@given(mode=MODES, max_steps=st.integers(1, 80), seed=st.integers(0, 2**16))
+def test_the_packed_episode_step_is_the_envs_step_to_the_episodes_end(mode, max_steps, seed):
+    """Stepped alike through whole episodes (goal entries and the step limit included), the packed state is the env's
+    after every step, the live agents' observations and every moving agent's reward are the env's, and the bits
+    returned are the agents still live."""
+    rng = np.random.default_rng(seed)
+    env = FourRoomParallelEnv(observation_mode=mode, max_steps=max_steps)
+    for _ in range(3):
+        env.reset()
+        dynamics = env.packed_dynamics()
+        while env.agents:
+            moving = list(env.agents)
+            actions = {agent: int(rng.integers(4)) for agent in moving}
+            chosen = np.array([actions.get(agent, 0) for agent in env.possible_agents], dtype=np.int64)
+            observations = np.zeros((2, len(env.observation_space("agent_0").nvec)), dtype=np.int64)
+            rewards = np.zeros((2, 3), dtype=np.float32)
+            live = dynamics.episode_step(
+                dynamics.model, dynamics.constants, dynamics.state, chosen, observations, rewards
+            )
+            obs, reward, _, _, _ = env.step(actions)
+            assert [bool(live >> i & 1) for i in range(2)] == [agent in env.agents for agent in env.possible_agents]
+            assert np.array_equal(dynamics.state, env.packed_dynamics().state)
+            for i, agent in enumerate(env.possible_agents):
+                if agent in moving:
+                    assert np.array_equal(rewards[i], reward[agent])
+                if agent in env.agents:
+                    assert np.array_equal(observations[i], obs[agent])

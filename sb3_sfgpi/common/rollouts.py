@@ -280,10 +280,10 @@ def _run_batched(
         total[episodes, agents] += rewards
         discount[stepping] *= gamma
         observations = batch.observations()
-    return _batched_results(batch.agents, started, discounted, total, batch.final_infos(), per_result)
+    return batched_returns(batch.agents, started, discounted, total, batch.final_infos(), per_result)
 
 
-def _batched_results(
+def batched_returns(
     agents: list[str],
     started: np.ndarray,
     discounted: np.ndarray,

@@ -215,23 +215,35 @@ def gpi_attaining(
     :param attaining: written: whether each member attains GPI's value of the action taken, shape ``(P, B)``
     """
     n_policies, d = attaining.shape[0], weights.shape[1]
-    n_actions = stack.shape[1] // (n_policies * d)
-    q = np.empty((n_policies, n_actions), dtype=np.float32)
-    best = np.empty(n_actions, dtype=np.float32)
+    q = np.empty((n_policies, stack.shape[1] // (n_policies * d)), dtype=np.float32)
+    best = np.empty(q.shape[1], dtype=np.float32)
     for b in range(stack_rows.shape[0]):
-        row = stack[stack_rows[b]]
+        allowed_b = allowed[b] if allowed.shape[0] > 0 else allowed[0:0, 0]
+        actions[b] = gpi_decision(stack[stack_rows[b]], weights[b], left_out[b], allowed_b, q, best)
         for p in range(n_policies):
-            for a in range(n_actions):
-                start = (p * n_actions + a) * d
-                q[p, a] = weighted_value(row[start : start + d], weights[b])
-                if p == left_out[b] or (allowed.shape[0] > 0 and not allowed[b, a]):
-                    q[p, a] = -np.inf
+            attaining[p, b] = q[p, actions[b]] == best[actions[b]]
+
+
+@njit(cache=True, nogil=True)
+def gpi_decision(
+    row: np.ndarray, weights: np.ndarray, left_out: int, allowed: np.ndarray, q: np.ndarray, best: np.ndarray
+) -> int:
+    """
+    GPI's action in one state (see :func:`gpi_attaining`): every member's ``w · ψ(s, a)`` written into ``q``
+    (``(P, A)``, ``-inf`` for ``left_out`` and the actions ``allowed`` forbids, empty: none), their maximum over
+    members into ``best``, and the first action of the largest (or the first NaN) returned.
+    """
+    n_policies, n_actions = q.shape
+    d = weights.shape[0]
+    for p in range(n_policies):
         for a in range(n_actions):
-            best[a] = _numpy_max(q[:, a])
-        chosen = _numpy_argmax(best)
-        actions[b] = chosen
-        for p in range(n_policies):
-            attaining[p, b] = q[p, chosen] == best[chosen]
+            start = (p * n_actions + a) * d
+            q[p, a] = weighted_value(row[start : start + d], weights)
+            if p == left_out or (allowed.shape[0] > 0 and not allowed[a]):
+                q[p, a] = -np.inf
+    for a in range(n_actions):
+        best[a] = _numpy_max(q[:, a])
+    return _numpy_argmax(best)
 
 
 @njit(cache=True, nogil=True)
