@@ -10,7 +10,7 @@ reads returns and decisions only).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from pettingzoo import ParallelEnv
@@ -18,6 +18,7 @@ from pettingzoo import ParallelEnv
 from sb3_sfgpi.common.action_masks import ACTION_MASK
 from sb3_sfgpi.common.rollouts import EpisodeReturns, batched_returns
 from sb3_sfgpi.common.weights import validate_weight_rows
+from sb3_sfgpi.tabular.network import TabularSFNetwork
 
 if TYPE_CHECKING:
     from sb3_sfgpi.gpi import GPIPolicy
@@ -47,15 +48,16 @@ def compiled_gpi_episodes(
     """
     stacked = policy_set.stacked_tables()
     read = None if stacked is None else starts(seeds)
-    if read is None:
+    if stacked is None or read is None:
         return None
     from sb3_sfgpi.tabular.gpi_episodes import run_gpi_episodes
 
     dynamics, states, observations, live = read
     rows = validate_weight_rows(weights, policy_set.reward_dim).astype(np.float32)  # as GPI reads them
     episodes = run_gpi_episodes(
-        dynamics, states, observations, live, stacked, policy_set.networks[0], rows, left_out.astype(np.int64), gamma
-    )
+        dynamics, states, observations, live, stacked, cast(TabularSFNetwork, policy_set.networks[0]), rows,
+        left_out.astype(np.int64), gamma,
+    )  # fmt: skip
     started = (live[:, None] >> np.arange(observations.shape[1])) & 1 == 1
     infos: list[dict[str, dict[str, Any]]] = [{} for _ in seeds]
     returns = batched_returns(starts.agents, started, episodes.discounted, episodes.total, infos, per_result)

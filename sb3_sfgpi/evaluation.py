@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -24,6 +24,9 @@ from sb3_sfgpi.evaluation_jobs import EvaluationJob, ParallelEvaluator
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.run_settings import RunSettings
 
+if TYPE_CHECKING:
+    from sb3_sfgpi.tabular.gpi_episodes import GPIEpisodes
+
 #: Runs a joint policy for some episodes from a seed (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.rollout`).
 Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
 #: Runs episodes for many weights together, one batched decision a step, where it can (else None): ``lockstep(policy,
@@ -31,7 +34,7 @@ Rollout = Callable[[JointPolicy, int, int], EpisodeReturns]
 Lockstep = Callable[..., list[EpisodeReturns] | None]
 #: Runs GPI's episodes over a set of tables in one compiled call where it can (else None): ``gpi_episodes(policy_set,
 #: weights, left_out, seeds, per_result)`` (:meth:`~sb3_sfgpi.multiagent.MultiAgentRunner.gpi_episodes`).
-GPIEpisodesRunner = Callable[..., Any]
+GPIEpisodesRunner = Callable[..., "tuple[list[EpisodeReturns], GPIEpisodes] | None"]
 
 
 def summarize_test_episodes(

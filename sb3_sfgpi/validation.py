@@ -272,9 +272,10 @@ class ValidationScorer:
             returns, episodes = ran
             steps = [(episodes.observations, None, episodes.actions, episodes.attaining, episodes.episodes)]
         else:
-            returns, steps = self._stepped_together(policy_set, weights, without, seeds)
-            if returns is None:
+            stepped, steps = self._stepped_together(policy_set, weights, without, seeds)
+            if stepped is None:
                 return None
+            returns = stepped
         self.rollouts += len(indices)
         decisions = _runs_decisions(steps, len(indices), n, policy_set.action_space.n)
         return [(result, *decided) for result, decided in zip(returns, decisions, strict=True)]

@@ -13,13 +13,17 @@ lockstep's trace gives once sorted by episode.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numba import njit, types
 
 from sb3_sfgpi.tabular.joint_steps import PACKED_STEP_SIGNATURE
 from sb3_sfgpi.tabular.kernels import gpi_decision
+
+if TYPE_CHECKING:
+    from sb3_sfgpi.stacking import StackedTables
+    from sb3_sfgpi.tabular.network import TabularSFNetwork
 
 #: Why :func:`_run_episodes` stopped: every episode ended; the trace is full (call again with more room); an
 #: observation is outside the tables' space (the trace's row at the count returned holds it).
@@ -141,8 +145,8 @@ def run_gpi_episodes(
     states: np.ndarray,
     observations: np.ndarray,
     live: np.ndarray,
-    stacked: Any,
-    network: Any,
+    stacked: StackedTables,
+    network: TabularSFNetwork,
     weights: np.ndarray,
     left_out: np.ndarray,
     gamma: float,
@@ -155,7 +159,7 @@ def run_gpi_episodes(
     :param observations: every agent's observation at each reset, ``(episodes, agents, obs_size)``, int64
     :param live: the agents live at each reset, as bits, ``(episodes,)``
     :param stacked: the set's :class:`~sb3_sfgpi.stacking.StackedTables`
-    :param network: one of the tables (a :class:`~sb3_sfgpi.tabular.network.TabularSFNetwork`): their geometry
+    :param network: one of the tables (their geometry)
     :param weights: each episode's weights, ``(episodes, d)``, float32 (as GPI reads them)
     :param left_out: each episode's member GPI acts without (``-1``: none)
     :raises ValueError: an observation outside the tables' space
