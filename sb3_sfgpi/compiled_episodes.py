@@ -53,11 +53,13 @@ def compiled_gpi_episodes(
     from sb3_sfgpi.tabular.gpi_episodes import run_gpi_episodes
 
     dynamics, states, observations, live = read
+    network = cast(TabularSFNetwork, policy_set.networks[0])
+    if observations.shape[2] != len(network.geometry[0]):
+        return None  # observations of another size than the tables': GPI's own decision refuses them
     rows = validate_weight_rows(weights, policy_set.reward_dim).astype(np.float32)  # as GPI reads them
     episodes = run_gpi_episodes(
-        dynamics, states, observations, live, stacked, cast(TabularSFNetwork, policy_set.networks[0]), rows,
-        left_out.astype(np.int64), gamma,
-    )  # fmt: skip
+        dynamics, states, observations, live, stacked, network, rows, left_out.astype(np.int64), gamma
+    )
     started = (live[:, None] >> np.arange(observations.shape[1])) & 1 == 1
     infos: list[dict[str, dict[str, Any]]] = [{} for _ in seeds]
     returns = batched_returns(starts.agents, started, episodes.discounted, episodes.total, infos, per_result)

@@ -112,11 +112,12 @@ def test_episodes_longer_than_the_first_room_go_on_where_they_were(monkeypatch):
     assert gpi_episodes.NO_ROOM in [status for status, _, _ in calls]
 
 
-def test_an_observation_outside_the_tables_is_the_tables_error():
-    """Tables of a smaller grid than the env's: the compiled call refuses the first observation outside them with the
-    error the lockstep's GPI decision gives."""
-    env = FourRoomParallelEnv()
-    policy_set = random_tables(env, 0, 2, nvec=[4, 4])
+@pytest.mark.parametrize(("mode", "nvec"), [("xy", [4, 4]), ("own", [13, 13])])
+def test_an_observation_the_tables_do_not_hold_is_the_tables_error(mode, nvec):
+    """Tables of a smaller grid than the env's, or of observations without the env's object flags: validation refuses
+    the first observation they do not hold with the error the lockstep's GPI decision gives."""
+    env = FourRoomParallelEnv(observation_mode=mode)
+    policy_set = random_tables(env, 0, 2, nvec=nvec)
     errors = []
     for scorer in scorers(env, 3, 1)[:2]:
         with pytest.raises(ValueError) as error:
