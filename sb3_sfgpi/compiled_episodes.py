@@ -54,8 +54,8 @@ def compiled_gpi_episodes(
 
     dynamics, states, observations, live = read
     network = cast(TabularSFNetwork, policy_set.networks[0])
-    if observations.shape[2] != len(network.geometry[0]):
-        return None  # observations of another size than the tables': GPI's own decision refuses them
+    if observations.shape[2] != len(network.geometry[0]) or stacked.n_actions != starts.n_actions:
+        return None  # observations or actions of another size than the tables': GPI or the env refuses them
     rows = validate_weight_rows(weights, policy_set.reward_dim).astype(np.float32)  # as GPI reads them
     episodes = run_gpi_episodes(
         dynamics, states, observations, live, stacked, network, rows, left_out.astype(np.int64), gamma
@@ -77,6 +77,9 @@ class PackedStarts:
 
     def __init__(self, env: ParallelEnv):
         self.env, self.agents = env, list(env.possible_agents)
+        #: the agents' number of actions (-1: they differ)
+        sizes = {getattr(env.action_space(agent), "n", -1) for agent in self.agents}
+        self.n_actions = int(sizes.pop()) if len(sizes) == 1 else -1
         self._starts: dict[int, tuple[np.ndarray, np.ndarray, int]] = {}
         self._dynamics: Any = None
         self._usable = getattr(type(env), "packed_dynamics", None) is not None and len(self.agents) <= MAX_AGENTS

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import random_mlp_network
+from gymnasium.spaces import Discrete
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from sfgpi_envs.four_room import FourRoomParallelEnv
@@ -22,14 +23,16 @@ from sb3_sfgpi.validation import Scored, ValidationScorer
 TABULAR = dict(policy="TabularPolicy", learning_starts=0, train_freq=1, batch_size=4)
 
 
-def random_tables(env: FourRoomParallelEnv, seed: int, n_members: int, nvec: list[int] | None = None) -> GPIPolicy:
-    """Random tables of the env's observations (``nvec``: of another space), their default row random too, and a
-    copy of the first member last (GPI follows both wherever it follows one)."""
+def random_tables(
+    env: FourRoomParallelEnv, seed: int, n_members: int, nvec: list[int] | None = None, n_actions: int = 4
+) -> GPIPolicy:
+    """Random tables of the env's observations (``nvec``: of another space) and ``n_actions`` actions, their default
+    row random too, and a copy of the first member last (GPI follows both wherever it follows one)."""
     space = env.observation_space("agent_0")
     rng = np.random.default_rng(seed)
     policy_set = GPIPolicy()
     for k in range(n_members):
-        net = TabularSFNetwork(space if nvec is None else type(space)(nvec), env.action_space("agent_0"), 3)
+        net = TabularSFNetwork(space if nvec is None else type(space)(nvec), Discrete(n_actions), 3)
         rows = np.unique(rng.integers(0, net.table.n_rows, min(net.table.n_rows, 3_000)))
         rows = np.union1d(rows, np.arange(0, net.table.n_rows, max(net.table.n_rows // 169, 1)))  # flags all 0
         values = rng.normal(size=(len(rows), net.table.width)).astype(np.float32)
@@ -112,18 +115,18 @@ def test_episodes_longer_than_the_first_room_go_on_where_they_were(monkeypatch):
     assert gpi_episodes.NO_ROOM in [status for status, _, _ in calls]
 
 
-@pytest.mark.parametrize(("mode", "nvec"), [("xy", [4, 4]), ("own", [13, 13])])
-def test_an_observation_the_tables_do_not_hold_is_the_tables_error(mode, nvec):
-    """Tables of a smaller grid than the env's, or of observations without the env's object flags: validation refuses
-    the first observation they do not hold with the error the lockstep's GPI decision gives."""
+@pytest.mark.parametrize(("mode", "nvec", "n_actions"), [("xy", [4, 4], 4), ("own", [13, 13], 4), ("xy", None, 6)])
+def test_what_the_tables_and_the_env_do_not_share_is_refused_as_in_the_lockstep(mode, nvec, n_actions):
+    """Tables of a smaller grid than the env's, of observations without the env's object flags, or of more actions
+    than the env has: validation refuses the first observation or action with the lockstep's error."""
     env = FourRoomParallelEnv(observation_mode=mode)
-    policy_set = random_tables(env, 0, 2, nvec=nvec)
+    policy_set = random_tables(env, 0, 2, nvec=nvec, n_actions=n_actions)
     errors = []
     for scorer in scorers(env, 3, 1)[:2]:
         with pytest.raises(ValueError) as error:
             scorer(policy_set)
         errors.append(str(error.value))
-    assert errors[0] == errors[1] and "observation" in errors[0]
+    assert errors[0] == errors[1] and ("observation" in errors[0] or "actions are" in errors[0])
 
 
 def test_no_compiled_episodes_without_tables_or_the_envs_own_packed_step():
