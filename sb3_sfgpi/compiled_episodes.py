@@ -40,8 +40,8 @@ def compiled_gpi_episodes(
     """
     GPI's episodes over ``policy_set``, one per seed, each for its weights and without its member ``left_out``
     (``-1``: none), where they can run compiled: the env's own class offers a packed step with episode ends
-    (``packed_dynamics().episode_step``), the set is tables on the CPU, and the env gives integer observations and no
-    action masks. Else None (nothing was run).
+    (``packed_dynamics().episode_step``), the set is tables on the CPU of the env's observation size and number of
+    actions, and the env gives integer observations and no action masks. Else None (nothing was run).
 
     :param starts: the env's episodes' packed starts
     :return: the returns of each ``per_result`` consecutive episodes, and every decision
