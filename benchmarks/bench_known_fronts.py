@@ -54,6 +54,7 @@ from sb3_sfgpi.cli.gym_domains import (
 )
 from sb3_sfgpi.common.parallel_wrappers import as_parallel_env
 from sb3_sfgpi.common.rollouts import run_episodes
+from sb3_sfgpi.common.seeded_draws import with_seeded_draws
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import summarize_test_episodes
@@ -158,7 +159,7 @@ def _problem_name(env: str) -> str:
 
 
 def _make_env(problem: Problem) -> Any:
-    return mo.make(problem.env_id, **problem.env_kwargs)
+    return with_seeded_draws(mo.make(problem.env_id, **problem.env_kwargs))
 
 
 def _learner_of(problem: Problem) -> tuple[str, dict[str, Any]]:

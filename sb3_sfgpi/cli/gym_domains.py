@@ -18,6 +18,7 @@ import numpy as np
 
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.common.reward_space import env_reward_dim
+from sb3_sfgpi.common.seeded_draws import with_seeded_draws
 from sb3_sfgpi.common.single_agent import SingleAgentParallelEnv
 from sb3_sfgpi.common.vec_env import import_registering_package
 from sb3_sfgpi.run_settings import GAMMA
@@ -78,7 +79,7 @@ MLP_RUN = {"validation_weights": 50, "prune": True, "episode_weights": "support"
 def make_gym_env(env_id: str, **env_kwargs: Any) -> SingleAgentParallelEnv:
     """The Gymnasium env ``env_id`` as a ParallelEnv of one agent (picklable with ``functools.partial``)."""
     _register_ids()
-    return SingleAgentParallelEnv(gym.make(env_id, **env_kwargs))
+    return SingleAgentParallelEnv(with_seeded_draws(gym.make(env_id, **env_kwargs)))
 
 
 def gym_preset(env_id: str) -> dict[str, Any] | None:
