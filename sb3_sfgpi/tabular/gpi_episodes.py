@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, types
 
 from sb3_sfgpi.tabular.joint_steps import PACKED_STEP_SIGNATURE
-from sb3_sfgpi.tabular.kernels import gpi_decision
+from sb3_sfgpi.tabular.kernels import gpi_decision, observation_row
 
 if TYPE_CHECKING:
     from sb3_sfgpi.stacking import StackedTables
@@ -96,15 +96,12 @@ def _run_episodes(
                     continue
                 if count == trace_episodes.shape[0]:
                     return NO_ROOM, episode_start, e
-                row = 0
                 for j in range(low.shape[0]):
                     trace_observations[count, j] = observations[e, i, j]
-                for j in range(low.shape[0]):
-                    x = observations[e, i, j]
-                    if not low[j] <= x < end[j]:
-                        return OUTSIDE, count, e
-                    row += x * strides[j]
-                state = stack[stack_row[row - first_row]]
+                row = observation_row(observations[e, i], low, end, strides, first_row)
+                if row < 0:
+                    return OUTSIDE, count, e
+                state = stack[stack_row[row]]
                 actions[i] = gpi_decision(state, weights[e], left_out[e], every_action, q, best)
                 for p in range(q.shape[0]):
                     trace_attaining[count, p] = q[p, actions[i]] == best[actions[i]]

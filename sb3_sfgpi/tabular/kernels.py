@@ -60,18 +60,32 @@ def action_values(
     """
     psi, slot_map = table
     for i in range(observations.shape[0]):
-        row = 0
-        for j in range(strides.shape[0]):
-            x = observations[i, j]
-            if not (low[j] <= x < end[j]) or np.int64(x) != x:  # bounds first: NaN and huge floats
-                return i
-            row += np.int64(x) * strides[j]
-        slot = slot_map[row - first_row]
+        row = observation_row(observations[i], low, end, strides, first_row)
+        if row < 0:
+            return i
+        slot = slot_map[row]
         if slot < 0:
             slot = psi.shape[0] - 1
         for a in range(psi.shape[1]):
             values[i, a] = weighted_value(psi[slot, a], weights)
     return -1
+
+
+@njit(cache=True, nogil=True)
+def observation_row(
+    observation: np.ndarray, low: np.ndarray, end: np.ndarray, strides: np.ndarray, first_row: int
+) -> int:
+    """
+    The table row of one raw observation (see :func:`action_values` for the geometry), or ``-1`` where it is outside
+    the space: a component not an integer in its bounds, which would read another state's row.
+    """
+    row = 0
+    for j in range(strides.shape[0]):
+        x = observation[j]
+        if not (low[j] <= x < end[j]) or np.int64(x) != x:  # bounds first: NaN and huge floats
+            return -1
+        row += np.int64(x) * strides[j]
+    return row - first_row
 
 
 @njit(cache=True, nogil=True)
