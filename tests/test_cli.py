@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import gc
 import json
 import subprocess
 import sys
-import weakref
 
 import numpy as np
 import pytest
@@ -16,7 +14,6 @@ from sfgpi_envs.domains import four_room
 from sb3_sfgpi.cli import main
 from sb3_sfgpi.cli.errors import UsageError
 from sb3_sfgpi.cli.presets import DomainPreset
-from sb3_sfgpi.cli.train import _setup_not_traversed
 from sb3_sfgpi.common.rollouts import run_episodes
 from sb3_sfgpi.common.weights import random_weights, same_weight
 from sb3_sfgpi.gpi import GPIPolicy
@@ -310,22 +307,3 @@ def test_an_ols_end_on_several_values_or_one_objective_says_the_set_is_a_ccs():
     from sb3_sfgpi.cli.train import _ols_end
 
     assert _ols_end(ccs_size=4, reward_dim=3) == _ols_end(ccs_size=1, reward_dim=1) == " (OLS ended: the set is a CCS)"
-
-
-class _Cycle:
-    def __init__(self):
-        self.me = self
-
-
-def test_training_keeps_its_setup_out_of_full_collections_and_no_earlier_garbage_with_it():
-    """Earlier runs' garbage is collected before the setup is frozen (a sweep's worker trains run after run), and
-    the freeze ends with training."""
-    gc.disable()  # no automatic pass frees the cycle first
-    try:
-        garbage = weakref.ref(_Cycle())  # a cycle: only the collector frees it
-        assert garbage() is not None
-        with _setup_not_traversed():
-            assert garbage() is None and gc.get_freeze_count() > 0
-        assert gc.get_freeze_count() == 0
-    finally:
-        gc.enable()

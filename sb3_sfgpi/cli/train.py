@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import gc
 import signal
 import sys
 from collections.abc import Iterator
@@ -105,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         raise
     print(_header(args, preset, config, run_dir), flush=True)
     try:
-        with _sigterm_as_interrupt(), _setup_not_traversed():
+        with _sigterm_as_interrupt():
             model.learn(config["iterations"], progress_bar=not args.no_progress and sys.stderr.isatty())
     except (RuntimeError, OSError, KeyboardInterrupt) as error:  # a dead simulator, a full disk, Ctrl-C, SIGTERM
         raise TrainingStopped(_stopped_message(args, run_dir, model, error)) from error
@@ -144,22 +143,6 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
-
-
-@contextmanager
-def _setup_not_traversed() -> Iterator[None]:
-    """
-    What the process holds when training starts (the imports, the env, the model) is left out of the garbage
-    collector's full passes while it trains: each pass over it took 0.1–0.15 s, about a tenth of a Four-Room
-    iteration (issue 59). The garbage of earlier runs in this process is collected first, and afterwards everything
-    is collected as before.
-    """
-    gc.collect()
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
 
 
 def _run_config(args: argparse.Namespace, preset: DomainPreset) -> tuple[dict[str, Any], dict[str, Any]]:
