@@ -179,12 +179,17 @@ def start_learning(
 
 
 def end_learning(learner: SFDQN, callback: BaseCallback) -> None:
-    """End a learner's iteration: remove its optimism, end its callback, write its last logs."""
+    """
+    End a learner's iteration: remove its optimism, end its callback, write its last logs and close the logger its
+    iteration opened (TensorBoard's writer and its thread; a logger the user set is the user's to close).
+    """
     learner.remove_optimism()
     callback.on_rollout_end()
     callback.on_training_end()
     if learner._episode_num > 0:
         learner.dump_logs()
+    if not learner._custom_logger:
+        learner.logger.close()
 
 
 def greedy_joint_policy(learners: Mapping[str, SFDQN], learner_of: Mapping[str, str] | None) -> JointPolicy:

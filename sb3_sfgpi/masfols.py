@@ -264,9 +264,13 @@ class MASFOLS:
         return self.callback.history
 
     def close(self) -> None:
-        """Stop evaluation workers and the env's copies, and close the env."""
+        """Stop evaluation workers and the env's copies, close the run's logs (a later :meth:`learn` opens them again
+        where the checkpoint left them) and the env."""
         self.callback.close()
         self.runner.close()
+        if self._logs_open:
+            self.runner.logger.close()
+            self._logs_open = False
         self.runner.env.close()
 
 

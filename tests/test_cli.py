@@ -5,10 +5,11 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
-from conftest import FEW_VALIDATION
+from conftest import FEW_VALIDATION, tiny_four_room
 from sfgpi_envs.domains import four_room
 
 from sb3_sfgpi.cli import main
@@ -307,3 +308,14 @@ def test_an_ols_end_on_several_values_or_one_objective_says_the_set_is_a_ccs():
     from sb3_sfgpi.cli.train import _ols_end
 
     assert _ols_end(ccs_size=4, reward_dim=3) == _ols_end(ccs_size=1, reward_dim=1) == " (OLS ended: the set is a CCS)"
+
+
+def test_the_logs_of_every_iteration_and_of_the_run_are_closed(tmp_path):
+    """TensorBoard's writers (a thread and an open file each) of every iteration's learners end with the iteration,
+    the run's own (logs/) with the run: a process that trains run after run does not gather them."""
+    before = set(threading.enumerate())
+    argv = [*tiny_four_room(), "--iterations", "3", *FEW_VALIDATION, "--no-progress", "--out", str(tmp_path / "run")]
+    assert main(argv) == 0
+    assert len(list((tmp_path / "run" / "tensorboard").iterdir())) == 6  # two learners in each of 3 iterations
+    started = [t.name for t in threading.enumerate() if t not in before]
+    assert [name for name in started if name != "tqdm_monitor"] == []  # tqdm's one monitor of the process stays
