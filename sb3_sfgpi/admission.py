@@ -24,11 +24,13 @@ from sb3_sfgpi.validation import Scored, ValidationScorer
 
 @dataclass(frozen=True)
 class Candidate:
-    """A policy learned in an iteration, with what Π records of it."""
+    """A policy learned in an iteration, with what Π records of it (``weights``: those it joins bound to, where a
+    learner conditioned on the weights offers its network for another weight than its own; None: its own)."""
 
     learner: SFDQN
     value: np.ndarray
     agent: str
+    weights: np.ndarray | None = None
 
 
 class Admission:
@@ -118,7 +120,7 @@ class Admission:
         kept = self._episodes(policy_set) if validate else None
         before = 0.0 if kept is None else kept.score
         for c in group:
-            policy_set.add(c.learner, value=c.value, agent=c.agent, iteration=iteration)
+            policy_set.add(c.learner, c.weights, value=c.value, agent=c.agent, iteration=iteration)
         self._cached = None if kept is None else self._started().replayed(policy_set, kept)
         if validate and (after := self._current(policy_set)) < before:
             for _ in group:
@@ -129,7 +131,7 @@ class Admission:
                       f"weights {after:.4f} with, {before:.4f} without")  # fmt: skip
             return False
         for c in group:
-            record.add(c.learner, value=c.value, agent=c.agent, iteration=iteration)
+            record.add(c.learner, c.weights, value=c.value, agent=c.agent, iteration=iteration)
         return True
 
     def _pruned(self, policy_set: GPIPolicy, record: GPIPolicy, iteration: int) -> GPIPolicy:

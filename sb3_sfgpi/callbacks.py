@@ -77,6 +77,8 @@ class OLSCallback(BaseCallback):
     :param pooled: where given, every iteration's transitions are pooled and the SFs of the new policies and of every
         recorded one planned on the pool before the values are estimated (single-agent tabular runs; see
         :mod:`sb3_sfgpi.tabular.pooling`); the run directory keeps what each iteration added
+    :param rebind_support: after every iteration each learner conditioned on the weights also offers Π its latest
+        network bound to every earlier weight of OLS's support, for validation to admit (it needs validation weights)
     """
 
     model: MultiAgentRunner  # type: ignore[assignment]
@@ -94,6 +96,7 @@ class OLSCallback(BaseCallback):
         resume: bool = False,
         verbose: int = 0,
         pooled: PooledReplay | None = None,
+        rebind_support: bool = False,
     ):
         super().__init__(verbose)
         if steps_per_iteration < 1:
@@ -101,6 +104,9 @@ class OLSCallback(BaseCallback):
         if resume and run_dir is None:
             raise ValueError("resume=True needs the run_dir to resume from")
         self.admission = admission or Admission(verbose=verbose)
+        if rebind_support and not self.admission.validation_weights:
+            raise ValueError("rebind_support offers Π networks for validation to admit: it needs validation weights")
+        self.rebind_support = rebind_support
         if self.admission.validation_weights and evaluation.policies == "own":
             raise ValueError("policy validation scores GPI over the shared Π: not for policies='own' evaluations")
         self.schedule = schedule
@@ -202,6 +208,8 @@ class OLSCallback(BaseCallback):
             for name, value in self._estimate_values().items()  # lines 17-19: V^π of each agent's new policy
             if self.schedule.add(value, self.weights[name])  # lines 20-21, 23-28: a new value: OLS's corner weights
         ]
+        if self.rebind_support:
+            candidates += self._rebound()
         self.policy_set = self.admission.admit(self.record, candidates, self.iteration + 1)  # line 22: Π
         self._stage_policy_set()  # before the evaluation: its worker processes load Π
         self.history.append(self._evaluate_gpi())
@@ -261,6 +269,24 @@ class OLSCallback(BaseCallback):
             name: runner.rollout(runner.learner_policy(name), episodes, seed).mean_discounted_over()
             for name in runner.learner_names
         }
+
+    def _rebound(self) -> list[Candidate]:
+        """
+        Each conditioned learner's latest network bound to every earlier weight of OLS's support (not its iteration's
+        own), with the value of that member acting alone for its weight, on the episodes of :meth:`_estimate_values`.
+        """
+        runner = self.model
+        seed = derive_seed(runner.seed, "value", self.iteration)
+        offered = []
+        for name, learner in runner.conditioned_learners.items():
+            for w in (np.asarray(w, dtype=np.float64) for w in self.schedule.ols.weights):
+                if np.allclose(w, self.weights[name]):
+                    continue
+                alone = GPIPolicy()
+                alone.add(learner, w)
+                returns = runner.rollout(alone.joint_policy(w), self.values.episodes, seed)
+                offered.append(Candidate(learner, returns.mean_discounted_over(runner.groups[name]), name, w))
+        return offered
 
     # --- GPI evaluation ---------------------------------------------------------------------------------------------
     def _evaluate_gpi(self) -> dict[str, Any]:

@@ -64,6 +64,9 @@ class MASFOLS:
     :param episode_weights: what learners conditioned on the weights (``"ConditionedMlpPolicy"``) act and train for in
         each episode: ``"own"``, their iteration's weight, or ``"support"``, one drawn from their support at every
         episode start (GPI-LS's behaviour; :mod:`~sb3_sfgpi.episode_weights`)
+    :param rebind_support: at the end of every iteration, each learner conditioned on the weights also offers Π its
+        latest network bound to every earlier weight of OLS's support (what it learned for that weight since its
+        member joined); validation admits each only where GPI does no worse, and pruning retires what it supersedes
     :param test_weights: the weights GPI is evaluated at after every iteration: an array ``(n, d)``, a number ``n`` of
         Dirichlet(1) weights drawn with seed 0, or None (12 such weights; fixed weights: those)
     :param eval_episodes: episodes per test weight
@@ -86,8 +89,8 @@ class MASFOLS:
         its ``run.json`` when :meth:`learn` starts
     :param verbose: 1 prints a line per iteration, and the policies validation leaves out or retires
     :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them);
-        ``pool_replay`` with several agents or other learners than tables; ``episode_weights="support"`` with learners
-        not conditioned on the weights
+        ``pool_replay`` with several agents or other learners than tables; ``episode_weights="support"`` or
+        ``rebind_support`` with learners not conditioned on the weights; ``rebind_support`` without validation weights
     """
 
     def __init__(
@@ -111,12 +114,19 @@ class MASFOLS:
         n_envs: int = RunSettings.n_envs,
         pool_replay: bool = RunSettings.pool_replay,
         episode_weights: str = RunSettings.episode_weights,
+        rebind_support: bool = RunSettings.rebind_support,
         env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
         run_dir: str | Path | None = None,
         eval_workers: int = 0,
         verbose: int = 0,
     ):
         learner_kwargs = dict(learner_kwargs or {})
+        if rebind_support and not (_conditioned(policy) and validation_weights):
+            raise ValueError(
+                "rebind_support offers Π a conditioned learner's latest network at earlier weights, for validation to "
+                f"admit: it needs policy='ConditionedMlpPolicy' and validation_weights > 0, got {policy!r} and "
+                f"{validation_weights}"
+            )
         self.runner = _runner(
             env,
             policy,
@@ -152,12 +162,14 @@ class MASFOLS:
             n_envs=n_envs,
             pool_replay=pool_replay,
             episode_weights=episode_weights,
+            rebind_support=rebind_support,
         )
         self.callback = OLSCallback(
             make_schedule(weights, ols_batch), steps_per_iteration, evaluation,
             ValueEstimation(value_mode, value_episodes),
             Admission(validation_weights, prune=prune, together=admit_together, verbose=verbose), self.run_dir,
             verbose=verbose, pooled=PooledReplay(self.runner.gamma) if pool_replay else None,
+            rebind_support=rebind_support,
         )  # fmt: skip
         #: What :meth:`learn` writes to ``run.json``: the settings and plain data added here (the CLI: domain, env)
         self.run_info: dict[str, Any] = self.settings.to_json()
@@ -285,6 +297,11 @@ def _check_poolable(runner: MultiAgentRunner, policy: str) -> None:
         raise ValueError(f"pool_replay plans SF tables: policy must be 'TabularPolicy', got {policy!r}")
 
 
+def _conditioned(policy: str) -> bool:
+    """Whether learners of ``policy`` are conditioned on the weights (one network going on over the iterations)."""
+    return policy in SFDQN.policy_aliases and issubclass(SFDQN.policy_aliases[policy], ConditionedPolicy)
+
+
 def _runner(
     env: ParallelEnv | gym.Env,
     policy: str,
@@ -299,7 +316,7 @@ def _runner(
     episode_weights: str,
 ) -> MultiAgentRunner:
     """The runner of the learners, its learner options checked on one learner built and dropped."""
-    goes_on = policy in SFDQN.policy_aliases and issubclass(SFDQN.policy_aliases[policy], ConditionedPolicy)
+    goes_on = _conditioned(policy)
     if episode_weights == "support" and not goes_on:  # refused before the env's copies start
         raise ValueError(
             f"episode_weights='support' draws the weights of learners conditioned on them: policy must be "

@@ -25,7 +25,7 @@ VALUE_MODES = ("joint", "shared")
 #: What conditioned learners act and train for in each episode (see :mod:`~sb3_sfgpi.episode_weights`).
 EPISODE_WEIGHTS = ("own", "support")
 #: Settings added after runs were first written: a ``run.json`` without one is of a run that had its default.
-ADDED_LATER = ("episode_weights",)
+ADDED_LATER = ("episode_weights", "rebind_support")
 
 
 @dataclass(frozen=True)
@@ -57,6 +57,7 @@ class RunSettings:
     n_envs: int = 1
     pool_replay: bool = False
     episode_weights: str = EPISODE_WEIGHTS[0]
+    rebind_support: bool = False
 
     @classmethod
     def names(cls) -> tuple[str, ...]:

@@ -160,6 +160,14 @@ def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys)
             "policy must be 'ConditionedMlpPolicy', got 'TabularPolicy'",
         ),
         (
+            ["train", "four-room", "--set", "rebind_support=1", "--out", "NOT_A_RUN"],
+            "--set rebind_support must be true",
+        ),
+        (
+            ["train", "four-room", "--set", "rebind_support=true", "--out", "NOT_A_RUN"],
+            "it needs policy='ConditionedMlpPolicy' and validation_weights > 0, got 'TabularPolicy'",
+        ),
+        (
             ["train", "four-room", "--set", "validation_weights=0", "--set", "prune=true", "--out", "NOT_A_RUN"],
             "--set prune=true needs validation weights",
         ),

@@ -262,3 +262,54 @@ def test_a_one_head_file_from_before_two_became_the_default_is_refused_in_one_li
     assert loaded.policy.sf_net.n_heads == 1
     for mine, theirs in zip(loaded.policy.parameters(), model.policy.parameters(), strict=True):
         assert th.equal(mine, theirs)
+
+
+def test_a_candidate_offered_for_another_weight_joins_bound_to_it(trained):
+    """A conditioned learner's network offered to Π for another weight of its support joins bound to that weight:
+    its SFs are the network's for it, not for the learner's own weights."""
+    from sb3_sfgpi.admission import Admission, Candidate
+
+    record = GPIPolicy()
+    other = SUPPORT[1]
+    pi = Admission(validation_weights=0, prune=False, together=False).admit(
+        record, [Candidate(trained, np.zeros(2), "agent_0", other)], iteration=1
+    )
+    for policy_set in (record, pi):
+        assert policy_set.infos[0].weights.tolist() == other.tolist()
+        for state in range(3):
+            obs = observation(state, one_hot=True).reshape(1, -1)
+            np.testing.assert_allclose(policy_set.successor_features(obs)[0, 0], _psi(trained, state, other), atol=1e-6)
+    assert not all(np.allclose(_psi(trained, s, other), _psi(trained, s, SUPPORT[0]), atol=1e-3) for s in range(3))
+
+
+def test_rebinding_offers_the_latest_network_at_every_earlier_weight_and_validation_decides(monkeypatch):
+    """With ``rebind_support`` every iteration offers Π, after its own policy, the learner's latest network bound to
+    each earlier weight of OLS's support; the offers that validation admits join bound to those weights."""
+    from sb3_sfgpi import admission
+
+    offered = []
+    admit = admission.Admission.admit
+
+    def spied(self, record, candidates, iteration):
+        offered.append([(c.learner, None if c.weights is None else c.weights.tolist()) for c in candidates])
+        return admit(self, record, candidates, iteration)
+
+    monkeypatch.setattr(admission.Admission, "admit", spied)
+    model = _masfols(validation_weights=8, rebind_support=True)
+    model.learn(max_iterations=3)
+    (learner,) = model.runner.learners.values()
+    trained = [row["weights_trained"]["agent_0"] for row in model.history]
+    for k, candidates in enumerate(offered):
+        earlier = [w for w in model.callback.schedule.ols.weights[: k + 1] if not np.allclose(w, trained[k])]
+        assert [w for _, w in candidates[1:]] == [np.asarray(w).tolist() for w in earlier]
+        assert candidates[0][1] is None and all(c is learner for c, _ in candidates)
+    rebound = [i for i in model.callback.record.infos if not np.allclose(i.weights, trained[i.iteration - 1])]
+    assert rebound  # here iteration 3's network joined for (1, 0)
+    assert all(any(np.allclose(info.weights, w) for w in model.callback.schedule.ols.weights) for info in rebound)
+
+
+def test_rebinding_needs_conditioned_learners_and_validation_weights():
+    with pytest.raises(ValueError, match="rebind_support"):
+        _masfols(rebind_support=True)
+    with pytest.raises(ValueError, match="rebind_support"):
+        MASFOLS(Fig1MOMDP(one_hot=True), policy="TabularPolicy", validation_weights=4, rebind_support=True)

@@ -36,6 +36,7 @@ RUN_SETTINGS = st.builds(
     n_envs=counts,
     pool_replay=st.booleans(),
     episode_weights=st.sampled_from(EPISODE_WEIGHTS),
+    rebind_support=st.booleans(),
 )
 
 
@@ -54,9 +55,11 @@ def test_a_run_json_without_a_setting_names_it():
         RunSettings.stored(stored, "run.json")
 
 
-def test_a_run_json_from_before_a_setting_was_added_has_its_default():
-    stored = RunSettings(episode_weights="support").to_json()
-    del stored["episode_weights"]  # a run written before the setting: it drew no weights
+@pytest.mark.parametrize("added", [{"episode_weights": "support"}, {"rebind_support": True}])
+def test_a_run_json_from_before_a_setting_was_added_has_its_default(added):
+    stored = RunSettings(**added).to_json()
+    for name in added:
+        del stored[name]  # a run written before the setting: it had the default
     assert RunSettings.stored(stored, "run.json") == RunSettings()
 
 
