@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.common.weights import format_weights, random_weights
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.run_settings import RunSettings
 from sb3_sfgpi.sfdqn import SFDQN
@@ -127,8 +127,8 @@ class Admission:
                 policy_set.pop()
             self._cached = kept
             policies = "policy" if len(group) == 1 else "policies together"
-            self._print(f"{' and '.join(c.agent for c in group)}'s {policies} left out of Π: GPI on the validation "
-                      f"weights {after:.4f} with, {before:.4f} without")  # fmt: skip
+            self._print(f"{' and '.join(c.agent for c in group)}'s {policies}{_offered_for(group)} left out of Π: "
+                      f"GPI on the validation weights {after:.4f} with, {before:.4f} without")  # fmt: skip
             return False
         for c in group:
             record.add(c.learner, c.weights, value=c.value, agent=c.agent, iteration=iteration)
@@ -149,8 +149,9 @@ class Admission:
             if scores[worst] <= current.score:
                 break
             info = policy_set.infos[worst]
-            self._print(f"{info.agent}'s policy of iteration {info.iteration} retired from Π: GPI on the validation "
-                      f"weights {scores[worst]:.4f} without it, {self._current(policy_set):.4f} with")  # fmt: skip
+            self._print(f"{info.agent}'s policy of iteration {info.iteration} for w = {format_weights(info.weights)} "
+                      f"retired from Π: GPI on the validation weights {scores[worst]:.4f} without it, "
+                      f"{self._current(policy_set):.4f} with")  # fmt: skip
             members = [i for i, member in enumerate(record.infos) if member.retired is None]
             record.retire(members[worst], iteration)
             policy_set = policy_set.subset(j for j in range(len(policy_set)) if j != worst)
@@ -175,3 +176,9 @@ class Admission:
     def _print(self, message: str) -> None:
         if self.verbose:
             print(message)
+
+
+def _offered_for(group: Sequence[Candidate]) -> str:
+    """The weights that candidates offered for other weights than their learners' own were offered for, as words."""
+    offered = [format_weights(c.weights) for c in group if c.weights is not None]
+    return f" for w = {' and '.join(offered)}" if offered else ""

@@ -282,9 +282,10 @@ def test_a_candidate_offered_for_another_weight_joins_bound_to_it(trained):
     assert not all(np.allclose(_psi(trained, s, other), _psi(trained, s, SUPPORT[0]), atol=1e-3) for s in range(3))
 
 
-def test_rebinding_offers_the_latest_network_at_every_earlier_weight_and_validation_decides(monkeypatch):
+def test_rebinding_offers_the_latest_network_at_every_earlier_weight_and_validation_decides(monkeypatch, capsys):
     """With ``rebind_support`` every iteration offers Π, after its own policy, the learner's latest network bound to
-    each earlier weight of OLS's support; the offers that validation admits join bound to those weights."""
+    each earlier weight of OLS's support; the offers that validation admits join bound to those weights, and each one
+    it leaves out is named with the weights it was offered for."""
     from sb3_sfgpi import admission
 
     offered = []
@@ -295,7 +296,7 @@ def test_rebinding_offers_the_latest_network_at_every_earlier_weight_and_validat
         return admit(self, record, candidates, iteration)
 
     monkeypatch.setattr(admission.Admission, "admit", spied)
-    model = _masfols(validation_weights=8, rebind_support=True)
+    model = _masfols(validation_weights=8, rebind_support=True, verbose=1)
     model.learn(max_iterations=3)
     (learner,) = model.runner.learners.values()
     trained = [row["weights_trained"]["agent_0"] for row in model.history]
@@ -306,6 +307,8 @@ def test_rebinding_offers_the_latest_network_at_every_earlier_weight_and_validat
     rebound = [i for i in model.callback.record.infos if not np.allclose(i.weights, trained[i.iteration - 1])]
     assert rebound  # here iteration 3's network joined for (1, 0)
     assert all(any(np.allclose(info.weights, w) for w in model.callback.schedule.ols.weights) for info in rebound)
+    kept_out = sum(len(candidates) - 1 for candidates in offered) - len(rebound)
+    assert kept_out > 0 and capsys.readouterr().out.count("agent_0's policy for w = [") == kept_out
 
 
 def test_rebinding_needs_conditioned_learners_and_validation_weights():
