@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 from sb3_sfgpi.admission import Admission, Candidate
 from sb3_sfgpi.common.metrics import hypervolume
 from sb3_sfgpi.common.seeding import derive_seed
-from sb3_sfgpi.common.weights import random_weights
+from sb3_sfgpi.common.weights import random_weights, same_weight
 from sb3_sfgpi.evaluation import EvaluationConfig, TestEvaluation
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.multiagent import MultiAgentRunner
@@ -260,8 +260,7 @@ class OLSCallback(BaseCallback):
 
     def _estimate_values(self) -> dict[str, np.ndarray]:
         """Monte-Carlo estimate of ``V^π`` of every new policy (see :class:`ValueEstimation`), by learner name."""
-        runner, episodes = self.model, self.values.episodes
-        seed = derive_seed(runner.seed, "value", self.iteration)  # the same episodes for every policy
+        runner, episodes, seed = self.model, self.values.episodes, self._value_seed()
         if self.values.mode == "joint":  # the learners act together; a policy's value is its agents' mean return
             returns = runner.rollout(runner.learner_policy(), episodes, seed)
             return {name: returns.mean_discounted_over(agents) for name, agents in runner.groups.items()}
@@ -275,18 +274,21 @@ class OLSCallback(BaseCallback):
         Each conditioned learner's latest network bound to every earlier weight of OLS's support (not its iteration's
         own), with the value of that member acting alone for its weight, on the episodes of :meth:`_estimate_values`.
         """
-        runner = self.model
-        seed = derive_seed(runner.seed, "value", self.iteration)
+        runner, seed = self.model, self._value_seed()
         offered = []
         for name, learner in runner.conditioned_learners.items():
             for w in (np.asarray(w, dtype=np.float64) for w in self.schedule.ols.weights):
-                if np.allclose(w, self.weights[name]):
+                if same_weight(w, self.weights[name]):
                     continue
                 alone = GPIPolicy()
                 alone.add(learner, w)
                 returns = runner.rollout(alone.joint_policy(w), self.values.episodes, seed)
                 offered.append(Candidate(learner, returns.mean_discounted_over(runner.groups[name]), name, w))
         return offered
+
+    def _value_seed(self) -> int:
+        """The seed of the iteration's value episodes: the same episodes for every policy valued in it."""
+        return derive_seed(self.model.seed, "value", self.iteration)
 
     # --- GPI evaluation ---------------------------------------------------------------------------------------------
     def _evaluate_gpi(self) -> dict[str, Any]:
