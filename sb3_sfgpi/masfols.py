@@ -32,6 +32,7 @@ from sb3_sfgpi.schedules import make_schedule
 from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.conditioned import ConditionedPolicy
 from sb3_sfgpi.tabular.pooling import PooledReplay
+from sb3_sfgpi.trust import check_learner_kwargs
 
 
 class MASFOLS:
@@ -86,11 +87,14 @@ class MASFOLS:
     :param eval_workers: worker processes of GPI's evaluation (0: in this process; they do not change its results)
     :param seed: the run's seed (learners, resets and random weights derive theirs from it)
     :param run_dir: where Π, evaluations, checkpoints and logs go (None: nowhere). :attr:`run_info` is written to
-        its ``run.json`` when :meth:`learn` starts
+        its ``run.json`` when :meth:`learn` starts; a resume builds the learners from it alone, so with a run
+        directory ``learner_kwargs`` are those a run file takes (numbers, strings, ``policy_kwargs`` with
+        ``net_arch`` and ``n_heads``: no classes)
     :param verbose: 1 prints a line per iteration, and the policies validation leaves out or retires
     :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them);
         ``pool_replay`` with several agents or other learners than tables; ``episode_weights="support"`` or
-        ``rebind_support`` with learners not conditioned on the weights; ``rebind_support`` without validation weights
+        ``rebind_support`` with learners not conditioned on the weights; ``rebind_support`` without validation weights;
+        with a ``run_dir``, learner arguments a run file does not take
     """
 
     def __init__(
@@ -127,6 +131,8 @@ class MASFOLS:
                 f"admit: it needs policy='ConditionedMlpPolicy' and validation_weights > 0, got {policy!r} and "
                 f"{validation_weights}"
             )
+        if run_dir is not None:  # its run.json must describe the run to a resume, which takes nothing else
+            check_learner_kwargs(learner_kwargs or {}, "MASFOLS with a run_dir")
         self.runner = _runner(
             env,
             policy,

@@ -6,12 +6,14 @@ import json
 
 import numpy as np
 import pytest
+import torch as th
 from momdp import REWARDS, TERMINAL
 from parallel_chain import CHAIN_LEARNER, ParallelChainEnv, optimal_value
 from stable_baselines3.common.logger import TensorBoardOutputFormat
 from tensorboard_scalars import scalar_steps
 
 from sb3_sfgpi import masfols
+from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.masfols import MASFOLS
@@ -171,6 +173,22 @@ def test_learn_refuses_a_run_dir_that_already_holds_a_run(tmp_path):
     with pytest.raises(ValueError, match="already holds a run"):
         again.learn(max_iterations=1)
     assert (tmp_path / "run.json").read_bytes() == config  # the run's description is not overwritten
+
+
+@pytest.mark.parametrize(
+    ("learner_kwargs", "message"),
+    [
+        ({"policy_kwargs": {"activation_fn": th.nn.Tanh}}, "policy argument 'activation_fn' is not taken"),
+        ({"replay_buffer_class": MOReplayBuffer}, "learner argument 'replay_buffer_class' is not taken"),
+        ({"verbose": 1}, "learner argument 'verbose' is not taken"),
+    ],
+)
+def test_a_run_dir_refuses_learner_arguments_its_run_file_cannot_give_back(tmp_path, learner_kwargs, message):
+    """A resume builds the learners from run.json alone: what it cannot hold (a class) is refused before training."""
+    with pytest.raises(ValueError, match=f"MASFOLS with a run_dir: {message}"):
+        MASFOLS(ParallelChainEnv(2), policy="MlpPolicy", learner_kwargs=learner_kwargs, run_dir=tmp_path)
+    assert not (tmp_path / "run.json").exists()
+    MASFOLS(ParallelChainEnv(2), policy="MlpPolicy", learner_kwargs=learner_kwargs)  # without one: any SFDQN argument
 
 
 @pytest.mark.parametrize("weights", ["greedy", "OLS", ""])
