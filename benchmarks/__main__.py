@@ -5,10 +5,11 @@
     python -m benchmarks gpi ols         # some: gpi training planning ols traffic memory optimum sharing
                                          # copies ray-eval startup admission tabular tabular-peer sweep
                                          # sweep-fig4, and sweep-fig4-preset,
-                                         # known-fronts, deep-fronts (only when named)
+                                         # known-fronts, deep-fronts, momaland (only when named)
     python -m benchmarks --output results.md
     python -m benchmarks known-fronts --seeds 0 1 2 --envs deep-sea-treasure resource-gathering fruit-tree
     python -m benchmarks deep-fronts --seeds 0 1 2        # minecart(-deterministic), lunar lander: 15 × 10,000 steps
+    python -m benchmarks momaland --seeds 0 1 2           # item gathering against MOMAland's GPI-LS (15 × 10,000)
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
 repeats; the ratio is candidate speed / baseline speed (or baseline bytes / candidate bytes for memory),
@@ -52,9 +53,10 @@ BENCHMARKS = {
     "sweep-fig4-preset": "benchmarks.bench_sweep:run_fig4_preset",
     "known-fronts": "benchmarks.bench_known_fronts",
     "deep-fronts": "benchmarks.bench_known_fronts:run_deep",
+    "momaland": "benchmarks.bench_momaland",
 }
 #: Run only when named (each takes many minutes on 2 cores), not in the default "everything".
-ON_REQUEST = ("sweep-fig4-preset", "known-fronts", "deep-fronts")
+ON_REQUEST = ("sweep-fig4-preset", "known-fronts", "deep-fronts", "momaland")
 
 
 def _cpu_model() -> str:
@@ -137,8 +139,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="+", help="seeds of the benchmarks that train (known-fronts)")
     parser.add_argument("--envs", nargs="+", help="envs of the benchmarks that take some (known-fronts)")
     parser.add_argument("--peer-steps", type=int, help="env steps of the morl-baselines peers (default: ours)")
+    parser.add_argument("--peer-updates", type=int, help="gradient updates per step of momaland's peer (default: 10)")
     args = parser.parse_args(argv)
-    given = (("seeds", args.seeds), ("envs", args.envs), ("peer_steps", args.peer_steps))
+    given = (
+        ("seeds", args.seeds),
+        ("envs", args.envs),
+        ("peer_steps", args.peer_steps),
+        ("peer_updates", args.peer_updates),
+    )
     options = {key: value for key, value in given if value is not None}
     single_thread_torch()
     names = args.names or [name for name in BENCHMARKS if name not in ON_REQUEST]

@@ -201,8 +201,9 @@ def _problem_rows(problem: Problem, seeds: list[int], quick: bool) -> list[Row]:
     front = _front_expected_utility(env, weights, gamma)
     baseline = _reference(best) + ("" if best is None else f", {reference}")
     baseline += "" if front is None else f"; MO-Gymnasium's front: {front:.4f}"
-    return [_summary_row(case, outcomes, best, baseline, seeds)] + [
-        _seed_row(problem.env_id, seed, outcome, best) for seed, outcome in zip(seeds, outcomes, strict=True)
+    return [summary_row(NAME, case, outcomes, best, baseline, seeds)] + [
+        seed_row(NAME, f"{problem.env_id} seed {seed}", outcome, best)
+        for seed, outcome in zip(seeds, outcomes, strict=True)
     ]
 
 
@@ -270,7 +271,10 @@ def _reference(best: float | None) -> str:
     return "no known front: EU alone" if best is None else f"EU* {best:.4f}"
 
 
-def _summary_row(case: str, outcomes: list[Outcome], best: float | None, baseline: str, seeds: list[int]) -> Row:
+def summary_row(
+    name: str, case: str, outcomes: list[Outcome], best: float | None, baseline: str, seeds: list[int]
+) -> Row:
+    """The row of a method on a problem: its score over the seeds (mean ± std and each), EU, wall, steps, |Π|."""
     scores = [_score(o.expected_utility, best) for o in outcomes]
     notes = [
         f"per seed ({', '.join(map(str, seeds))}): {', '.join(f'{r:.3f}' for r in scores)}",
@@ -281,10 +285,11 @@ def _summary_row(case: str, outcomes: list[Outcome], best: float | None, baselin
     ]
     if all(o.monte_carlo is not None for o in outcomes):
         notes.insert(2, f"run's Monte-Carlo EU {_mean_std([o.monte_carlo for o in outcomes], 4)}")
-    return Row(NAME, case, f"{_score_name(best)} {_mean_std(scores)}", baseline, note="; ".join(notes))
+    return Row(name, case, f"{_score_name(best)} {_mean_std(scores)}", baseline, note="; ".join(notes))
 
 
-def _seed_row(env_id: str, seed: int, outcome: Outcome, best: float | None) -> Row:
+def seed_row(name: str, case: str, outcome: Outcome, best: float | None) -> Row:
+    """The row of one seed's run: its score, EU, wall, steps, iterations, |Π| and its score after each iteration."""
     notes = f"{outcome.wall_time:.0f} s, {outcome.env_steps:,} env steps, {outcome.iterations} iterations"
     if outcome.n_policies:
         notes += f", |Π| = {outcome.n_policies}"
@@ -292,7 +297,7 @@ def _seed_row(env_id: str, seed: int, outcome: Outcome, best: float | None) -> R
         trace = ", ".join(f"{_score(value, best):.2f}" for value in outcome.by_iteration)
         notes += f"; {_score_name(best)} by iteration (Monte Carlo): {trace}"
     score = f"{_score_name(best)} {_score(outcome.expected_utility, best):.3f}"
-    return Row(NAME, f"{env_id} seed {seed}", score, f"EU {outcome.expected_utility:.4f}", note=notes)
+    return Row(name, case, score, f"EU {outcome.expected_utility:.4f}", note=notes)
 
 
 # --- morl-baselines (optional: pip install morl-baselines) ------------------------------------------------------------
@@ -378,14 +383,19 @@ def _train_gpi_ls(
         _seeded_env(problem, seed), gamma=learner["gamma"], gradient_updates=learner.get("gradient_steps", 1),
         seed=seed, log=False, device="cpu" if not th.cuda.is_available() else "auto", **GPI_LS_SETTINGS,
     )  # fmt: skip
-    sample = agent._sample_batch_experiences  # morl-baselines 1.4 also returns the indices, which only PER unpacks
-    agent._sample_batch_experiences = lambda: tuple(sample())[:5]
+    drop_sampled_indices(agent)
     agent.train(
         total_timesteps=steps * iterations, eval_env=_seeded_env(problem, derive_seed(seed, "peer eval")),
         ref_point=np.zeros(agent.reward_dim), timesteps_per_iter=steps, weight_selection_algo="gpi-ls",
         checkpoints=False,  # ref_point serves only its logging, which is off
     )  # fmt: skip
     return agent
+
+
+def drop_sampled_indices(agent: Any) -> None:
+    """A GPI-PD agent without PER samples 5 arrays, as it unpacks them (morl-baselines 1.4 also returns indices)."""
+    sample = agent._sample_batch_experiences
+    agent._sample_batch_experiences = lambda: tuple(sample())[:5]
 
 
 #: morl-baselines' peer by the kind of the problem's learners: tabular (True) or MLP (False).
@@ -434,8 +444,8 @@ def _peer_rows(peer: Peer, problem: Problem, seeds: list[int], quick: bool, peer
     except Exception as error:  # noqa: BLE001 - another version's API: say so in the table, go on
         return [Row(NAME, case, f"failed: {type(error).__name__}: {error}")]
     label = f"{problem.env_id} morl-baselines {peer.name}"
-    return [_summary_row(case, outcomes, best, _reference(best), seeds)] + [
-        _seed_row(label, seed, outcome, best) for seed, outcome in zip(seeds, outcomes, strict=True)
+    return [summary_row(NAME, case, outcomes, best, _reference(best), seeds)] + [
+        seed_row(NAME, f"{label} seed {seed}", outcome, best) for seed, outcome in zip(seeds, outcomes, strict=True)
     ]
 
 

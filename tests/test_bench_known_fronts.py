@@ -68,22 +68,24 @@ def test_a_problem_without_a_known_front_is_scored_by_eu_alone():
     best = bench._best(minecart, bench._make_env(minecart), None, random_weights(3, 5, rng=0), 0.98)
     assert best is not None and best > 0  # minecart's CCS: some ore home beats standing still
     outcomes = [bench.Outcome(-2.0, -2.0, 1.0, 100, 1, 1), bench.Outcome(-1.0, -1.0, 1.0, 100, 2, 1)]
-    summary = bench._summary_row("lander", outcomes, None, "no known front: EU alone", [0, 1])
+    summary = bench.summary_row(bench.NAME, "lander", outcomes, None, "no known front: EU alone", [0, 1])
     assert summary.candidate == "EU -1.500 ± 0.707" and "per seed (0, 1): -2.000, -1.000" in summary.note
-    assert bench._seed_row("mo-lunar-lander-v3", 0, outcomes[0], None).candidate == "EU -2.000"
-    assert bench._seed_row("minecart-v0", 0, outcomes[0], -4.0).candidate == "EU/EU* 0.500"
-    assert bench._summary_row("m", outcomes, -4.0, "EU*", [0, 1]).candidate == "EU/EU* 0.375 ± 0.177"
+    assert bench.seed_row(bench.NAME, "mo-lunar-lander-v3 seed 0", outcomes[0], None).candidate == "EU -2.000"
+    assert bench.seed_row(bench.NAME, "minecart-v0 seed 0", outcomes[0], -4.0).candidate == "EU/EU* 0.500"
+    assert bench.summary_row(bench.NAME, "m", outcomes, -4.0, "EU*", [0, 1]).candidate == "EU/EU* 0.375 ± 0.177"
 
 
 def test_a_seed_row_of_a_run_shows_gpis_score_after_every_iteration():
     """The deep runs swing between iterations: a seed's row shows the whole trace, scored as its end is."""
     outcome = bench.Outcome(4.0, 4.0, 1.0, 100, 2, 3, by_iteration=(2.0, -1.0, 4.0))
-    note = bench._seed_row("deep-sea-treasure-v0", 0, outcome, 5.0).note
+    note = bench.seed_row(bench.NAME, "deep-sea-treasure-v0 seed 0", outcome, 5.0).note
     assert note.endswith("EU/EU* by iteration (Monte Carlo): 0.40, -0.20, 0.80")
-    assert bench._seed_row("mo-lunar-lander-v3", 0, outcome, None).note.endswith(
+    assert bench.seed_row(bench.NAME, "mo-lunar-lander-v3 seed 0", outcome, None).note.endswith(
         "EU by iteration (Monte Carlo): 2.00, -1.00, 4.00"
     )
-    assert "by iteration" not in bench._seed_row("x", 0, bench.Outcome(1.0, None, 1.0, 100, 1, 1), 2.0).note
+    assert (
+        "by iteration" not in bench.seed_row(bench.NAME, "x seed 0", bench.Outcome(1.0, None, 1.0, 100, 1, 1), 2.0).note
+    )
 
 
 def test_deep_sea_treasure_with_mlp_successor_features_is_a_deep_problem_scored_exactly():
