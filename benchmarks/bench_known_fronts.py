@@ -222,12 +222,7 @@ def _train_sfols(
         test_weights=weights, eval_episodes=problem.eval_episodes, seed=seed,
         verbose=0 if problem.tabular else 1,  # a line per iteration of the hour-long deep runs
     )  # fmt: skip
-    start = time.perf_counter()
-    try:
-        masfols.learn(max_iterations=iterations)
-    finally:
-        masfols.close()
-    wall_time = time.perf_counter() - start
+    wall_time = timed_learn(masfols, iterations)
     last = masfols.history[-1]
     policy_set = masfols.policy_set
     exact = None if model is None else model.expected_utility(lambda o, w: policy_set.predict(o, w)[0], weights)
@@ -240,6 +235,16 @@ def _train_sfols(
         iterations=len(masfols.history),
         by_iteration=tuple(entry["mean_return"] for entry in masfols.history),
     )
+
+
+def timed_learn(masfols: MASFOLS, iterations: int) -> float:
+    """Train ``masfols`` for ``iterations`` iterations (its logs closed after): the wall time, in seconds."""
+    start = time.perf_counter()
+    try:
+        masfols.learn(max_iterations=iterations)
+    finally:
+        masfols.close()
+    return time.perf_counter() - start
 
 
 def _front_expected_utility(env: Any, weights: np.ndarray, gamma: float) -> float | None:

@@ -32,7 +32,15 @@ import numpy as np
 import torch as th
 
 from benchmarks._common import MORL_MISSING, Row
-from benchmarks.bench_known_fronts import N_TEST_WEIGHTS, SEEDS, Outcome, drop_sampled_indices, seed_row, summary_row
+from benchmarks.bench_known_fronts import (
+    N_TEST_WEIGHTS,
+    SEEDS,
+    Outcome,
+    drop_sampled_indices,
+    seed_row,
+    summary_row,
+    timed_learn,
+)
 from sb3_sfgpi import MASFOLS, SwapTerminationsTruncations
 from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, MLP_RUN
 from sb3_sfgpi.common.seeding import derive_seed
@@ -104,12 +112,7 @@ def _train_ours(weights: np.ndarray, seed: int, steps: int, iterations: int) -> 
         make_env(), policy=MLP_LEARNER["policy"], steps_per_iteration=steps, learner_kwargs=learner, value_episodes=5,
         **MLP_RUN, test_weights=weights, eval_episodes=1, seed=seed, verbose=1,
     )  # fmt: skip
-    start = time.perf_counter()
-    try:
-        masfols.learn(max_iterations=iterations)
-    finally:
-        masfols.close()
-    wall_time = time.perf_counter() - start
+    wall_time = timed_learn(masfols, iterations)
     by_iteration = tuple(_team_expected_utility(entry["test"]) for entry in masfols.history)
     last = masfols.history[-1]
     return Outcome(
