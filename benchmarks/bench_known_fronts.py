@@ -386,7 +386,7 @@ def _train_gpi_ls(
     """GPI-LS at our gradient updates per step, no wandb and no checkpoint files."""
     agent = algorithm(
         _seeded_env(problem, seed), gamma=learner["gamma"], gradient_updates=learner.get("gradient_steps", 1),
-        seed=seed, log=False, device="cpu" if not th.cuda.is_available() else "auto", **GPI_LS_SETTINGS,
+        seed=seed, log=False, device=peer_device(), **GPI_LS_SETTINGS,
     )  # fmt: skip
     drop_sampled_indices(agent)
     agent.train(
@@ -417,11 +417,27 @@ PEERS = {
 
 
 def _seeded_env(problem: Problem, seed: int) -> Any:
-    """A fresh env whose first reset and action sampling are seeded (the peers reset without a seed)."""
-    env = _make_env(problem)
+    """A fresh env of the problem, seeded for a peer (:func:`seeded`)."""
+    return seeded(_make_env(problem), seed)
+
+
+def seeded(env: Any, seed: int) -> Any:
+    """``env`` with its first reset and its action sampling seeded (the peers reset without a seed)."""
     env.reset(seed=seed)
     env.action_space.seed(seed)
     return env
+
+
+def seed_peer_generators(seed: int) -> None:
+    """Seed the global generators a morl-baselines peer draws weights, minibatches and networks from."""
+    random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002 - theirs, not ours
+    th.manual_seed(seed)
+
+
+def peer_device() -> str:
+    """A peer's torch device: CUDA where there is one, as ours (``device="auto"``), else the CPU."""
+    return "auto" if th.cuda.is_available() else "cpu"
 
 
 def _morl_rows(problems: list[Problem], seeds: list[int], quick: bool, peer_steps: int | None = None) -> list[Row]:
@@ -459,9 +475,7 @@ def _train_peer(
     seed: int, steps: int, iterations: int,
 ) -> Outcome:  # fmt: skip
     """One seeded run of a peer, its GPI scored like ours: exactly by the model, else by rollouts."""
-    random.seed(seed)  # the peers draw weights, minibatches and networks from the global generators
-    np.random.seed(seed)  # noqa: NPY002 - theirs, not ours
-    th.manual_seed(seed)
+    seed_peer_generators(seed)
     start = time.perf_counter()
     agent = peer.train(algorithm, problem, learner, seed, steps, iterations)
     wall_time = time.perf_counter() - start

@@ -23,13 +23,11 @@ undiscounted (the ceiling in the rows); the discounted front is not known.
 
 from __future__ import annotations
 
-import random
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-import torch as th
 
 from benchmarks._common import MORL_MISSING, Row
 from benchmarks.bench_known_fronts import (
@@ -37,7 +35,10 @@ from benchmarks.bench_known_fronts import (
     SEEDS,
     Outcome,
     drop_sampled_indices,
+    peer_device,
+    seed_peer_generators,
     seed_row,
+    seeded,
     summary_row,
     timed_learn,
 )
@@ -160,14 +161,11 @@ def _train_peer(
     iterations: int,
 ) -> Outcome:  # fmt: skip
     """One seeded run of the peer (its global generators seeded, as MOMAland's script does not), scored as ours."""
-    random.seed(seed)
-    np.random.seed(seed)  # noqa: NPY002 - theirs, not ours
-    th.manual_seed(seed)
-    env, eval_env = make(), make()
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
+    seed_peer_generators(seed)
+    env = seeded(make(), seed)
+    eval_env = make()
     eval_env.reset(seed=derive_seed(seed, "peer eval"))
-    agent = algorithm(env, seed=seed, log=False, device="cpu" if not th.cuda.is_available() else "auto", **settings)
+    agent = algorithm(env, seed=seed, log=False, device=peer_device(), **settings)
     drop_sampled_indices(agent)
     start = time.perf_counter()
     agent.train(
@@ -175,7 +173,8 @@ def _train_peer(
         weight_selection_algo="gpi-ls", timesteps_per_iter=steps, checkpoints=False,
     )  # fmt: skip
     wall_time = time.perf_counter() - start
-    eu = float(np.mean([_centralised_return(make(), agent.eval, w, derive_seed(seed, "eval", i)) @ w
+    scoring = make()  # one env: each episode's seeded reset decides it
+    eu = float(np.mean([_centralised_return(scoring, agent.eval, w, derive_seed(seed, "eval", i)) @ w
                         for i, w in enumerate(weights)]))  # fmt: skip
     return Outcome(eu, None, wall_time, int(agent.global_step), len(agent.weight_support), iterations)
 

@@ -132,7 +132,7 @@ class MASFOLS:
                 f"{validation_weights}"
             )
         if run_dir is not None:  # its run.json must describe the run to a resume, which takes nothing else
-            check_learner_kwargs(learner_kwargs or {}, "MASFOLS with a run_dir")
+            check_learner_kwargs(learner_kwargs, "MASFOLS with a run_dir")
         self.runner = _runner(
             env,
             policy,
