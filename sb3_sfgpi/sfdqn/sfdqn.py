@@ -17,6 +17,7 @@ from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.mo_off_policy import MOOffPolicyAlgorithm
 from sb3_sfgpi.common.observations import numeric_array
+from sb3_sfgpi.common.prioritized_buffer import PrioritizedMOReplayBuffer
 from sb3_sfgpi.common.vec_env import make_mo_vec_env, vec_env_reward_dim
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.run_settings import GAMMA
@@ -171,6 +172,8 @@ class SFDQN(MOOffPolicyAlgorithm):
         self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "reward_dim": self.reward_dim}
         self.policy_kwargs = {**self.policy_kwargs, "reward_dim": self.reward_dim}
         super()._setup_model()
+        if isinstance(self.replay_buffer, PrioritizedMOReplayBuffer) and isinstance(self.policy, TabularPolicy):
+            raise ValueError("prioritised replay is for network policies: a table learns every sampled row exactly")
         fraction = self.exploration_fraction if self.exploration_steps is None else 1.0  # of exploration_steps
         self.exploration_schedule = LinearSchedule(self.exploration_initial_eps, self.exploration_final_eps, fraction)
         self.set_weights(self._weights)
@@ -243,6 +246,8 @@ class SFDQN(MOOffPolicyAlgorithm):
     ) -> tuple[int, BaseCallback]:
         if reset_num_timesteps:
             self._plannings = 0
+        if isinstance(self.replay_buffer, PrioritizedMOReplayBuffer):  # errors for earlier weights say nothing of these
+            self.policy.score_replay(self.replay_buffer, self.gamma)
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     def _on_step(self) -> None:
