@@ -14,6 +14,7 @@ from momdp import Fig1MOMDP, observation, optimal_policy, successor_features
 
 from sb3_sfgpi.common.prioritized_buffer import PrioritizedMOReplayBuffer, SumTree
 from sb3_sfgpi.sfdqn import SFDQN
+from sb3_sfgpi.trust import check_learner_kwargs
 
 SUPPORT = np.array([[0.8, 0.2], [0.3, 0.7]])
 GAMMA = 0.9
@@ -38,9 +39,10 @@ def test_the_tree_holds_the_sum_and_the_maximum_of_its_leaves_after_any_writes(n
         masses = np.array(data.draw(st.lists(st.floats(0, 1, exclude_max=True), min_size=1, max_size=10)))
         found = tree.find(masses * tree.total)
         assert (leaves[found] > 0).all()
-        cumulative = np.cumsum(leaves)
-        expected = np.minimum(np.searchsorted(cumulative, masses * tree.total, side="right"), n - 1)
-        assert (found == expected)[leaves[expected] > 0].all()
+        after = np.cumsum(leaves)  # the leaf's interval holds the mass, up to the sums' rounding
+        tolerance = 1e-12 * tree.total
+        assert ((after[found] - leaves[found] <= masses * tree.total + tolerance)
+                & (masses * tree.total <= after[found] + tolerance)).all()  # fmt: skip
 
 
 def _buffer(n: int = 100, **kwargs) -> PrioritizedMOReplayBuffer:
@@ -140,3 +142,26 @@ def test_a_conditioned_learner_with_prioritised_replay_learns_the_exact_successo
             with th.no_grad():
                 psi = model.policy.sf_net(obs, th.as_tensor(w, dtype=th.float32))[0].numpy()
             np.testing.assert_allclose(psi, exact[state], atol=0.1)
+
+
+def test_a_learner_takes_the_buffer_by_name_as_a_run_file_gives_it():
+    model = SFDQN("MlpPolicy", Fig1MOMDP(one_hot=True), replay_buffer_class="PrioritizedMOReplayBuffer",
+                  replay_buffer_kwargs={"alpha": 0.5}, buffer_size=100)  # fmt: skip
+    assert isinstance(model.replay_buffer, PrioritizedMOReplayBuffer) and model.replay_buffer.alpha == 0.5
+    with pytest.raises(ValueError, match="unknown replay_buffer_class 'Prioritised'"):
+        SFDQN("MlpPolicy", Fig1MOMDP(one_hot=True), replay_buffer_class="Prioritised")
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"replay_buffer_class": "os.system"}, "'replay_buffer_class' must be one of MOReplayBuffer, Prioritized"),
+        ({"replay_buffer_kwargs": [0.6]}, "'replay_buffer_kwargs' must be an object"),
+        ({"replay_buffer_kwargs": {"beta": 0.4}}, "replay buffer argument 'beta' is not taken from a run file"),
+        ({"replay_buffer_kwargs": {"alpha": "0.6"}}, "replay buffer argument 'alpha' must be a number"),
+    ],
+)
+def test_a_run_file_names_only_known_buffers_with_numbers_for_their_arguments(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        check_learner_kwargs(kwargs, "run.json")
+    check_learner_kwargs({"replay_buffer_class": "PrioritizedMOReplayBuffer", "replay_buffer_kwargs": {"alpha": 1}}, "")

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer, MOReplayBufferSamples
@@ -179,3 +180,25 @@ class PrioritizedMOReplayBuffer(MOReplayBuffer):
     def stored_rows(self) -> np.ndarray:
         """The flat rows that hold a transition (those of a step whose rows are not all written yet included)."""
         return np.arange(self.buffer_size * self.n_envs if self.full else self.pos * self.n_envs + self._rows_at_pos)
+
+
+#: The replay buffers a learner's arguments may name (a run file holds names, not classes).
+REPLAY_BUFFERS: dict[str, type[MOReplayBuffer]] = {
+    "MOReplayBuffer": MOReplayBuffer,
+    "PrioritizedMOReplayBuffer": PrioritizedMOReplayBuffer,
+}
+
+
+def replay_buffer_class_named(name: str | type[ReplayBuffer] | None) -> type[ReplayBuffer]:
+    """
+    The class of a replay buffer given by name (:data:`REPLAY_BUFFERS`), by class, or None (``MOReplayBuffer``).
+
+    :raises ValueError: an unknown name
+    """
+    if name is None:
+        return MOReplayBuffer
+    if not isinstance(name, str):
+        return name
+    if name not in REPLAY_BUFFERS:
+        raise ValueError(f"unknown replay_buffer_class {name!r}: one of {', '.join(REPLAY_BUFFERS)}, or a class")
+    return REPLAY_BUFFERS[name]
