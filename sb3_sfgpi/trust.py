@@ -43,6 +43,9 @@ LEARNER_ARGUMENTS = frozenset(
         "replay_buffer_kwargs",
     }
 )
+#: The replay buffers a run file may name (those :data:`~sb3_sfgpi.common.prioritized_buffer.REPLAY_BUFFERS` resolves;
+#: named here without importing torch: the commands that only read runs do not).
+REPLAY_BUFFER_NAMES = ("MOReplayBuffer", "PrioritizedMOReplayBuffer")
 #: Replay buffer arguments a run file may set (the prioritised buffer's, numbers).
 REPLAY_BUFFER_ARGUMENTS = frozenset({"alpha", "min_priority"})
 #: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads``: a conditioned network's).
@@ -82,11 +85,11 @@ def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
 
 def _check_replay_buffer(kwargs: Mapping[str, Any], source: str) -> None:
     """A replay buffer named among those a learner takes by name, its arguments numbers on the allow-list."""
-    from sb3_sfgpi.common.prioritized_buffer import REPLAY_BUFFERS  # torch: only where a learner is built anyway
-
     name = kwargs.get("replay_buffer_class", "MOReplayBuffer")
-    if name not in REPLAY_BUFFERS:
-        raise ValueError(f"{source}: 'replay_buffer_class' must be one of {', '.join(REPLAY_BUFFERS)}, got {name!r}")
+    if name not in REPLAY_BUFFER_NAMES:
+        raise ValueError(
+            f"{source}: 'replay_buffer_class' must be one of {', '.join(REPLAY_BUFFER_NAMES)}, got {name!r}"
+        )
     buffer_kwargs = kwargs.get("replay_buffer_kwargs", {})
     if not isinstance(buffer_kwargs, dict):
         raise ValueError(f"{source}: 'replay_buffer_kwargs' must be an object, got {buffer_kwargs!r}")

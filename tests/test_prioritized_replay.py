@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from momdp import Fig1MOMDP, observation, optimal_policy, successor_features
 
-from sb3_sfgpi.common.prioritized_buffer import PrioritizedMOReplayBuffer, SumTree
+from sb3_sfgpi.common.prioritized_buffer import REPLAY_BUFFERS, PrioritizedMOReplayBuffer, SumTree
 from sb3_sfgpi.sfdqn import SFDQN
-from sb3_sfgpi.trust import check_learner_kwargs
+from sb3_sfgpi.trust import REPLAY_BUFFER_NAMES, check_learner_kwargs
 
 SUPPORT = np.array([[0.8, 0.2], [0.3, 0.7]])
 GAMMA = 0.9
@@ -165,3 +165,4 @@ def test_a_run_file_names_only_known_buffers_with_numbers_for_their_arguments(kw
     with pytest.raises(ValueError, match=message):
         check_learner_kwargs(kwargs, "run.json")
     check_learner_kwargs({"replay_buffer_class": "PrioritizedMOReplayBuffer", "replay_buffer_kwargs": {"alpha": 1}}, "")
+    assert REPLAY_BUFFER_NAMES == tuple(REPLAY_BUFFERS)  # what a run file names is what a learner resolves
