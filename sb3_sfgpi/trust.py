@@ -39,8 +39,15 @@ LEARNER_ARGUMENTS = frozenset(
         "stats_window_size",
         "policy_kwargs",
         "device",
+        "replay_buffer_class",
+        "replay_buffer_kwargs",
     }
 )
+#: The replay buffers a run file may name (those :data:`~sb3_sfgpi.common.prioritized_buffer.REPLAY_BUFFERS` resolves;
+#: named here without importing torch: the commands that only read runs do not).
+REPLAY_BUFFER_NAMES = ("MOReplayBuffer", "PrioritizedMOReplayBuffer")
+#: Replay buffer arguments a run file may set (the prioritised buffer's, numbers).
+REPLAY_BUFFER_ARGUMENTS = frozenset({"alpha", "min_priority"})
 #: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads``: a conditioned network's).
 POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads"})
 _MAX_WIDTH = 1 << 16
@@ -70,9 +77,26 @@ def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
         and all(isinstance(n, int) and not isinstance(n, bool) and 0 < n <= _MAX_WIDTH for n in net_arch)
     ):
         raise ValueError(f"{source}: 'net_arch' must be a list of at most 16 widths in [1, {_MAX_WIDTH}]")
+    _check_replay_buffer(kwargs, source)
     n_heads = policy_kwargs.get("n_heads", 1)
     if isinstance(n_heads, bool) or not isinstance(n_heads, int) or not 1 <= n_heads <= _MAX_HEADS:
         raise ValueError(f"{source}: 'n_heads' must be an integer in [1, {_MAX_HEADS}], got {n_heads!r}")
+
+
+def _check_replay_buffer(kwargs: Mapping[str, Any], source: str) -> None:
+    """A replay buffer named among those a learner takes by name, its arguments numbers on the allow-list."""
+    name = kwargs.get("replay_buffer_class", "MOReplayBuffer")
+    if name not in REPLAY_BUFFER_NAMES:
+        raise ValueError(
+            f"{source}: 'replay_buffer_class' must be one of {', '.join(REPLAY_BUFFER_NAMES)}, got {name!r}"
+        )
+    buffer_kwargs = kwargs.get("replay_buffer_kwargs", {})
+    if not isinstance(buffer_kwargs, dict):
+        raise ValueError(f"{source}: 'replay_buffer_kwargs' must be an object, got {buffer_kwargs!r}")
+    refuse_unlisted(buffer_kwargs, REPLAY_BUFFER_ARGUMENTS, f"{source}: replay buffer argument", "the replay buffer")
+    for key, value in buffer_kwargs.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{source}: replay buffer argument {key!r} must be a number, got {value!r}")
 
 
 def refuse_unlisted(kwargs: Mapping[str, Any], allowed: Collection[str], what: str, whose: str) -> None:

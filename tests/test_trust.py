@@ -92,7 +92,7 @@ def test_an_option_given_again_on_the_command_line_vouches_for_the_run_file(four
     ("learner", "message"),
     [
         ({"tensorboard_log": "/elsewhere"}, "learner argument 'tensorboard_log' is not taken from a run file"),
-        ({"replay_buffer_class": "x"}, "learner argument 'replay_buffer_class' is not taken from a run file"),
+        ({"replay_buffer_class": "x"}, "'replay_buffer_class' must be one of MOReplayBuffer"),
         ({"policy_kwargs": {"activation_fn": "Tanh"}}, "policy argument 'activation_fn' is not taken"),
         ({"policy_kwargs": {"net_arch": [10**9]}}, "'net_arch' must be a list of at most 16 widths"),
         ({"policy_kwargs": [1]}, "'policy_kwargs' must be an object"),

@@ -41,7 +41,11 @@ class FlatStorage(NamedTuple):
 
 
 class MOReplayBufferSamples(NamedTuple):
-    """SB3's ``ReplayBufferSamples`` (rewards of shape ``(batch, d)``) with the next observations' action masks."""
+    """
+    SB3's ``ReplayBufferSamples`` (rewards of shape ``(batch, d)``) with the next observations' action masks and,
+    from a buffer that takes priorities back (:class:`~sb3_sfgpi.common.prioritized_buffer.PrioritizedMOReplayBuffer`),
+    the rows drawn.
+    """
 
     observations: th.Tensor
     actions: th.Tensor
@@ -49,6 +53,7 @@ class MOReplayBufferSamples(NamedTuple):
     dones: th.Tensor
     rewards: th.Tensor
     next_action_masks: th.Tensor | None = None
+    rows: np.ndarray | None = None
 
 
 class MOReplayBuffer(ReplayBuffer):

@@ -24,7 +24,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.buffers import MOReplayBuffer, MOReplayBufferSamples
 from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.sfdqn.networks import SFNetwork, greedy_actions, scalarize
 from sb3_sfgpi.sfdqn.policies import SFDQNPolicy
@@ -221,25 +221,48 @@ class ConditionedPolicy(SFDQNPolicy):
         """
         batch = replay_buffer.sample(batch_size, env=vec_normalize_env)
         weights = self.weights.expand(batch_size, -1)
-        copies = 1
         if len(self.support) > 1:
             drawn = th.randint(len(self.support), (batch_size,), device=self.support.device)
-            weights, copies = th.cat([weights, self.support[drawn].to(weights.device)]), 2
+            weights = th.cat([weights, self.support[drawn].to(weights.device)])
+        current_heads, target_psi = self._heads_and_target(batch, weights, gamma)
+        own = slice(0, batch_size)  # the rows learned for the policy's weights: their errors are the priorities
+        self.give_back_errors(replay_buffer, batch, current_heads[:, own].detach(), target_psi[own])
+        loss = F.smooth_l1_loss(current_heads, target_psi.expand_as(current_heads), reduction="none")
+        return self.gradient_step(loss.mean(dim=(1, 2)).sum(), max_grad_norm)
 
-        def twice(x: th.Tensor) -> th.Tensor:
+    def current_and_target(self, batch: MOReplayBufferSamples, gamma: float) -> tuple[th.Tensor, th.Tensor]:
+        """
+        Each head's ``ψ(s, a, w)`` of the sampled transitions for the policy's weights ``w`` (with its gradient),
+        shape ``(n_heads, batch, d)``, and their TD target (see the class), shape ``(batch, d)``.
+        """
+        return self._heads_and_target(batch, self.weights.expand(len(batch.rewards), -1), gamma)
+
+    def weighted_errors(self, current_psi: th.Tensor, target_psi: th.Tensor) -> th.Tensor:
+        """``|w · (ψ(s, a, w) − target)|`` of the head that errs most, shape ``(batch,)``."""
+        return weighted_sum(current_psi - target_psi, self.weights).abs().max(dim=0).values
+
+    def _heads_and_target(
+        self, batch: MOReplayBufferSamples, weights: th.Tensor, gamma: float
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """
+        The heads' ``ψ(s, a, w')`` and the TD targets of the batch learned once for each block of ``len(batch)``
+        rows of ``weights`` (one weight per row, shape ``(k · batch, d)``).
+        """
+        copies = len(weights) // len(batch.rewards)
+
+        def repeated(x: th.Tensor) -> th.Tensor:
             return x.repeat(copies, *([1] * (x.dim() - 1)))
 
-        observations, next_observations = twice(batch.observations), twice(batch.next_observations)  # type: ignore[arg-type]
-        masks = None if batch.next_action_masks is None else twice(batch.next_action_masks)
+        observations, next_observations = repeated(batch.observations), repeated(batch.next_observations)  # type: ignore[arg-type]
+        masks = None if batch.next_action_masks is None else repeated(batch.next_action_masks)
         rows = th.arange(len(weights), device=weights.device)
         with th.no_grad():
             next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
             target_heads = self.sf_net_target.heads(next_observations, weights)[:, rows, next_actions]
             lowest = weighted_sum(target_heads, weights).argmin(dim=0)
-            target_psi = twice(batch.rewards) + (1 - twice(batch.dones)) * gamma * target_heads[lowest, rows]
-        current_heads = self.sf_net.heads(observations, weights)[:, rows, twice(batch.actions).long().flatten()]
-        loss = F.smooth_l1_loss(current_heads, target_psi.expand_as(current_heads), reduction="none")
-        return self.gradient_step(loss.mean(dim=(1, 2)).sum(), max_grad_norm)
+            target_psi = repeated(batch.rewards) + (1 - repeated(batch.dones)) * gamma * target_heads[lowest, rows]
+        current_heads = self.sf_net.heads(observations, weights)[:, rows, repeated(batch.actions).long().flatten()]
+        return current_heads, target_psi
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {**super()._get_constructor_parameters(), "n_heads": self.n_heads}

@@ -16,7 +16,9 @@ from torch import nn
 from torch.nn import functional as F
 
 from sb3_sfgpi.common.action_masks import checked_masks, masked, sample_allowed
-from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.buffers import MOReplayBuffer, MOReplayBufferSamples
+from sb3_sfgpi.common.prioritized_buffer import PrioritizedMOReplayBuffer
+from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.sfdqn.networks import SFNetwork, argmax_random_ties, greedy_actions, scalarize
 
 
@@ -206,14 +208,45 @@ class SFDQNPolicy(BasePolicy):
         :return: the loss before the step
         """
         batch = replay_buffer.sample(batch_size, env=vec_normalize_env)
-        rows = th.arange(batch_size, device=batch.rewards.device)
+        current_psi, target_psi = self.current_and_target(batch, gamma)
+        self.give_back_errors(replay_buffer, batch, current_psi.detach(), target_psi)
+        return self.gradient_step(F.smooth_l1_loss(current_psi, target_psi), max_grad_norm)
+
+    def current_and_target(self, batch: MOReplayBufferSamples, gamma: float) -> tuple[th.Tensor, th.Tensor]:
+        """
+        ``ψ(s, a)`` of the sampled transitions (with its gradient) and their TD target (see :meth:`td_update`).
+
+        :return: both of shape ``(batch, d)``
+        """
+        rows = th.arange(len(batch.rewards), device=batch.rewards.device)
         with th.no_grad():
             next_online = self.sf_net(batch.next_observations)
             next_actions = greedy_actions(next_online, self.weights, batch.next_action_masks)
             next_psi = next_online if self.sf_net_target is self.sf_net else self.sf_net_target(batch.next_observations)
             target_psi = batch.rewards + (1 - batch.dones) * gamma * next_psi[rows, next_actions]
-        current_psi = self.sf_net(batch.observations)[rows, batch.actions.long().flatten()]
-        return self.gradient_step(F.smooth_l1_loss(current_psi, target_psi), max_grad_norm)
+        return self.sf_net(batch.observations)[rows, batch.actions.long().flatten()], target_psi
+
+    def weighted_errors(self, current_psi: th.Tensor, target_psi: th.Tensor) -> th.Tensor:
+        """``|w · (ψ(s, a) − target)|`` for the policy's weights, shape ``(batch,)``."""
+        return weighted_sum(current_psi - target_psi, self.weights).abs()
+
+    def give_back_errors(
+        self, replay_buffer: MOReplayBuffer, batch: MOReplayBufferSamples, current_psi: th.Tensor, target_psi: th.Tensor
+    ) -> None:
+        """The sampled rows' errors for the policy's weights to a buffer that draws by them (prioritised replay)."""
+        if isinstance(replay_buffer, PrioritizedMOReplayBuffer):
+            replay_buffer.update_priorities(batch.rows, self.weighted_errors(current_psi, target_psi))
+
+    @th.no_grad()
+    def score_replay(self, replay_buffer: PrioritizedMOReplayBuffer, gamma: float, chunk: int = 4096) -> None:
+        """
+        Give every stored transition of a prioritised buffer its error for the policy's weights (a learner that goes
+        on with new weights does this before learning for them: the errors for other weights say nothing of them).
+        """
+        rows = replay_buffer.stored_rows()
+        for start in range(0, len(rows), chunk):
+            batch = replay_buffer.samples_at(rows[start : start + chunk])
+            self.give_back_errors(replay_buffer, batch, *self.current_and_target(batch, gamma))
 
     def gradient_step(self, loss: th.Tensor, max_grad_norm: float) -> float:
         """

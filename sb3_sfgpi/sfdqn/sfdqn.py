@@ -17,6 +17,7 @@ from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.mo_off_policy import MOOffPolicyAlgorithm
 from sb3_sfgpi.common.observations import numeric_array
+from sb3_sfgpi.common.prioritized_buffer import PrioritizedMOReplayBuffer, replay_buffer_class_named
 from sb3_sfgpi.common.vec_env import make_mo_vec_env, vec_env_reward_dim
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.run_settings import GAMMA
@@ -55,8 +56,12 @@ class SFDQN(MOOffPolicyAlgorithm):
     :param gamma: The discount factor
     :param train_freq: Update the model every ``train_freq`` steps, or a tuple ``(n, "step" | "episode")``
     :param gradient_steps: How many gradient steps to do after each rollout (-1: as many as env steps)
-    :param replay_buffer_class: Replay buffer class, a subclass of ``MOReplayBuffer``
-    :param replay_buffer_kwargs: Keyword arguments to pass to the replay buffer on creation
+    :param replay_buffer_class: Replay buffer class, a subclass of ``MOReplayBuffer``, or the name of one of
+        :data:`~sb3_sfgpi.common.prioritized_buffer.REPLAY_BUFFERS` (what a run file may name):
+        ``"PrioritizedMOReplayBuffer"`` draws transitions by their TD errors (network policies); None:
+        ``MOReplayBuffer``
+    :param replay_buffer_kwargs: Keyword arguments to pass to the replay buffer on creation (the prioritised
+        buffer's ``alpha`` and ``min_priority``)
     :param optimize_memory_usage: Enable a memory efficient variant of the replay buffer
     :param n_steps: Must be 1 (n-step returns are not implemented for vector rewards)
     :param target_update_interval: Update the target network every ``target_update_interval`` env steps
@@ -111,7 +116,7 @@ class SFDQN(MOOffPolicyAlgorithm):
         gamma: float = GAMMA,
         train_freq: int | tuple[int, str] = 4,
         gradient_steps: int = 1,
-        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_class: str | type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
         n_steps: int = 1,
@@ -134,12 +139,13 @@ class SFDQN(MOOffPolicyAlgorithm):
     ) -> None:
         policy_class = self._get_policy_from_name(policy) if isinstance(policy, str) else policy
         learning_rate = learning_rate_schedule(learning_rate)
+        replay_buffer_class = replay_buffer_class_named(replay_buffer_class)
         check_arguments(locals(), policy_class)
         device = resolve_device(device, tabular=issubclass(policy_class, TabularPolicy))
         env = make_mo_vec_env(env) if isinstance(env, str) else env  # SB3's gym.make would wrap a scalar Monitor
         super().__init__(
             policy, env, learning_rate, buffer_size, learning_starts, batch_size, tau, gamma, train_freq,
-            gradient_steps, action_noise=None, replay_buffer_class=replay_buffer_class or MOReplayBuffer,
+            gradient_steps, action_noise=None, replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs, optimize_memory_usage=optimize_memory_usage, n_steps=1,
             policy_kwargs=policy_kwargs, stats_window_size=stats_window_size, tensorboard_log=tensorboard_log,
             verbose=verbose, device=device, seed=seed, sde_support=False, supported_action_spaces=(spaces.Discrete,),
@@ -171,6 +177,8 @@ class SFDQN(MOOffPolicyAlgorithm):
         self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "reward_dim": self.reward_dim}
         self.policy_kwargs = {**self.policy_kwargs, "reward_dim": self.reward_dim}
         super()._setup_model()
+        if isinstance(self.replay_buffer, PrioritizedMOReplayBuffer) and isinstance(self.policy, TabularPolicy):
+            raise ValueError("prioritised replay is for network policies: a table learns every sampled row exactly")
         fraction = self.exploration_fraction if self.exploration_steps is None else 1.0  # of exploration_steps
         self.exploration_schedule = LinearSchedule(self.exploration_initial_eps, self.exploration_final_eps, fraction)
         self.set_weights(self._weights)
@@ -243,6 +251,8 @@ class SFDQN(MOOffPolicyAlgorithm):
     ) -> tuple[int, BaseCallback]:
         if reset_num_timesteps:
             self._plannings = 0
+        if isinstance(self.replay_buffer, PrioritizedMOReplayBuffer):  # errors for earlier weights say nothing of these
+            self.policy.score_replay(self.replay_buffer, self.gamma)
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     def _on_step(self) -> None:
