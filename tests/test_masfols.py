@@ -179,7 +179,7 @@ def test_learn_refuses_a_run_dir_that_already_holds_a_run(tmp_path):
     ("learner_kwargs", "message"),
     [
         ({"policy_kwargs": {"activation_fn": th.nn.Tanh}}, "policy argument 'activation_fn' is not taken"),
-        ({"replay_buffer_class": MOReplayBuffer}, "learner argument 'replay_buffer_class' is not taken"),
+        ({"replay_buffer_class": MOReplayBuffer}, "'replay_buffer_class' must be one of MOReplayBuffer, Prioritized"),
         ({"verbose": 1}, "learner argument 'verbose' is not taken"),
     ],
 )

@@ -47,8 +47,10 @@ TABULAR_POOL_REPLAY = True
 #: Deep learners (observations a table cannot hold): one network ψ(s, a, w) per agent for the whole run, trained over
 #: OLS's weights and acting by GPI over them (``ConditionedMlpPolicy``, two heads), with GPI-LS's minecart settings
 #: (γ 0.98, replay 200,000, target network every 200 steps, ε from 1 to 0.05 over the first 50,000 steps) on a
-#: 3 × 128 network updated three times per env step (about the compute per step of GPI-LS's 4 × 256 updated once);
-#: measured against one head, 4 × 256 and one new MLP per iteration on minecart: docs, experiments/known_fronts.
+#: 3 × 128 network updated three times per env step (about the compute per step of GPI-LS's 4 × 256 updated once),
+#: replay drawn by each transition's error for the learner's weights (GPI-PD's prioritised replay: the rare steps of a
+#: mine the current weights value are drawn more); measured against one head, 4 × 256, one new MLP per iteration and
+#: uniform replay on minecart: docs, experiments/deep_fronts.
 MLP_LEARNER = {
     "policy": "ConditionedMlpPolicy",
     "policy_kwargs": {"net_arch": [128, 128, 128]},
@@ -63,6 +65,7 @@ MLP_LEARNER = {
     "exploration_initial_eps": 1.0,
     "exploration_final_eps": 0.05,
     "exploration_steps": 50_000,
+    "replay_buffer_class": "PrioritizedMOReplayBuffer",
 }
 
 #: The run settings of tables besides their learner's: a new policy joins Π only if GPI does no worse with it on 50
