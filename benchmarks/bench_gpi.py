@@ -3,7 +3,9 @@
 Policy sets of |Π| ∈ {4, 16, 64} random networks, batches of 1 and 256 observations:
 
 * MLP: traffic-sized SF networks (``Box(15,)`` observations, 2 actions, d = 2, hidden [64, 64]);
-* tabular: Four-Room tables (``MultiDiscrete([13, 13])`` "xy" observations, 4 actions, d = 3).
+* tabular: Four-Room tables (``MultiDiscrete([13, 13])`` "xy" observations, 4 actions, d = 3);
+* conditioned: the deep preset's weight-conditioned networks, each bound to its own weights (minecart-sized:
+  ``Box(7,)`` observations, 6 actions, d = 3, hidden [128, 128, 128], two heads).
 
 The baseline runs the same networks one after the other (``net(obs) @ w``, then max over policies and argmax
 over actions). The "vmap" column is the generic ``stack_module_state`` + ``vmap`` path that ``predict`` used
@@ -22,6 +24,7 @@ from benchmarks._common import Row, calls_for, fmt_time, interleaved
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn import SFNetwork, TabularSFNetwork
+from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 from sb3_sfgpi.stacking import StackedVmap
 
 NAME = "gpi"
@@ -33,6 +36,13 @@ def mlp_network(seed: int) -> SFNetwork:
     space = spaces.Box(0.0, 1.0, shape=(15,), dtype=np.float32)
     extractor = FlattenExtractor(space)
     return SFNetwork(space, spaces.Discrete(2), extractor, extractor.features_dim, 2, net_arch=[64, 64])
+
+
+def conditioned_network(seed: int) -> ConditionedSFNetwork:
+    th.manual_seed(seed)
+    space = spaces.Box(-1.0, 1.0, shape=(7,), dtype=np.float32)
+    extractor = FlattenExtractor(space)
+    return ConditionedSFNetwork(space, spaces.Discrete(6), extractor, extractor.features_dim, 3, net_arch=[128] * 3)
 
 
 def tabular_network(seed: int) -> TabularSFNetwork:
@@ -67,14 +77,16 @@ def run(quick: bool = False) -> list[Row]:
     kinds = {
         "MLP": (mlp_network, spaces.Box(0.0, 1.0, shape=(15,), dtype=np.float32), 2),
         "tabular": (tabular_network, spaces.MultiDiscrete([13, 13]), 3),
+        "conditioned": (conditioned_network, spaces.Box(-1.0, 1.0, shape=(7,), dtype=np.float32), 3),
     }
     for kind, (make, space, d) in kinds.items():
         for n_policies in (4, 16, 64):
             networks = [make(seed) for seed in range(n_policies)]
             policy_set = GPIPolicy()
-            for net in networks:
-                policy_set.add(net, weights=np.ones(d))
-            stacked = StackedVmap(policy_set.networks) if kind == "MLP" else None  # tables hold no torch parameters
+            for seed, net in enumerate(networks):  # a conditioned member is bound to its weights: its own
+                own = np.random.default_rng(seed).dirichlet(np.ones(d)) if kind == "conditioned" else np.ones(d)
+                policy_set.add(net, weights=own)
+            stacked = StackedVmap(policy_set.networks) if kind != "tabular" else None  # tables: no torch parameters
             w = np.random.default_rng(0).dirichlet(np.ones(d))
             for batch in (1, 256):
                 space.seed(batch)

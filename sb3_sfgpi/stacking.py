@@ -3,10 +3,13 @@
 * tables: one gather of the observed rows from a ``(S, P·A·d)`` stack of the tables' learned rows;
 * MLPs (parameter-free features extractor, ``Linear`` layers and activations): the features are extracted once and
   every layer is one batched matrix product over the ``P`` networks;
+* weight-conditioned networks (:class:`~sb3_sfgpi.sfdqn.conditioned.ConditionedSFNetwork`, each bound to its
+  member's weights): the same, head by head, with layer normalisation as ``vmap`` computes it;
 * anything else: ``torch.func.stack_module_state`` + ``vmap`` over ``functional_call``.
 
-The three give the same ``ψ`` (the specialised ones skip the per-call overhead of ``vmap``, about a millisecond per
-decision; see ``benchmarks/bench_gpi.py``).
+The specialised ones give ``vmap``'s ``ψ`` bit for bit and skip its per-call overhead (about a millisecond per
+decision, more for conditioned networks, whose parameters ``functional_call`` swaps in and out; see
+``benchmarks/bench_gpi.py``).
 """
 
 from __future__ import annotations
@@ -142,6 +145,18 @@ class StackedTables:
         return weighted_sum(rows, each).reshape(-1, self.n_policies, self.n_actions)
 
 
+def _stacked_linears(linears: list[nn.Linear]) -> tuple[th.Tensor, th.Tensor]:
+    """The weights ``(P, in, out)`` and biases ``(P, 1, out)`` of ``P`` Linear layers."""
+    weight = th.stack([lin.weight for lin in linears]).transpose(1, 2)
+    return weight, th.stack([lin.bias for lin in linears]).unsqueeze(1)
+
+
+def _stateless_extractor(net: nn.Module) -> bool:
+    """Whether a network's features extractor holds no parameters or buffers (its features serve every network)."""
+    extractor = net.features_extractor
+    return not any(True for _ in extractor.parameters()) and not any(True for _ in extractor.buffers())
+
+
 class StackedMLP:
     """
     MLP SF networks stacked layer by layer: weights ``(P, in, out)``, biases ``(P, 1, out)`` for ``P`` networks.
@@ -158,10 +173,8 @@ class StackedMLP:
         with th.no_grad():
             for i, module in enumerate(first.sf_net):
                 if isinstance(module, nn.Linear):
-                    linears = [net.sf_net[i] for net in networks]
-                    weight = th.stack([lin.weight.transpose(0, 1) for lin in linears]).contiguous()
-                    bias = th.stack([lin.bias for lin in linears]).unsqueeze(1)
-                    self.layers.append((weight, bias))
+                    weight, bias = _stacked_linears([net.sf_net[i] for net in networks])
+                    self.layers.append((weight.contiguous(), bias))
                 else:
                     self.layers.append(module)
 
@@ -170,8 +183,7 @@ class StackedMLP:
         """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
         if type(net) is not SFNetwork or not isinstance(net.sf_net, nn.Sequential):  # a subclass may add layers
             return False
-        extractor = net.features_extractor
-        if any(True for _ in extractor.parameters()) or any(True for _ in extractor.buffers()):
+        if not _stateless_extractor(net):
             return False
         allowed = tuple(_ACTIVATIONS.values())
         for module in net.sf_net:
@@ -191,6 +203,75 @@ class StackedMLP:
             else:
                 x = layer(x)
         return x.view(self.n_policies, -1, self.n_actions, self.reward_dim)
+
+
+class StackedConditioned:
+    """
+    Weight-conditioned SF networks (:class:`~sb3_sfgpi.sfdqn.conditioned.ConditionedSFNetwork`), each bound to its
+    member's weights, stacked head by head: each ``Linear`` of the ``P`` networks is one batched product and one
+    addition of the biases, each layer normalisation one normalisation of the stack followed by each network's scale
+    and shift: ``vmap``'s arithmetic, the same bits as :class:`StackedVmap` (``baddbmm``'s fused addition is not).
+    """
+
+    def __init__(self, networks: list[nn.Module]):
+        first = networks[0]
+        self.first = first
+        self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
+        self.member_weights = th.stack([net.member_weights for net in networks]).unsqueeze(1)  # (P, 1, d)
+        self.heads: list[tuple[tuple[th.Tensor, th.Tensor], tuple[th.Tensor, th.Tensor], list]] = []
+        with th.no_grad():
+            for h, head in enumerate(first.sf_net):
+                each = [net.sf_net[h] for net in networks]
+                state = _stacked_linears([one.state_features[0] for one in each])
+                weight = _stacked_linears([one.weight_features[0] for one in each])
+                layers: list = []
+                for i, module in enumerate(head.layers):
+                    if isinstance(module, nn.Linear):
+                        layers.append(_stacked_linears([one.layers[i] for one in each]))
+                    elif isinstance(module, nn.LayerNorm):
+                        scale = th.stack([one.layers[i].weight for one in each]).unsqueeze(1)
+                        shift = th.stack([one.layers[i].bias for one in each]).unsqueeze(1)
+                        layers.append((module.normalized_shape, module.eps, scale, shift))
+                    else:
+                        layers.append(module)
+                self.heads.append((state, weight, layers))
+        self.activation = first.sf_net[0].state_features[1]
+
+    @staticmethod
+    def supports(net: nn.Module) -> bool:
+        """A conditioned SF network whose features extractor holds no state and whose layers are the class's own."""
+        from sb3_sfgpi.sfdqn.conditioned import ConditionedHead, ConditionedSFNetwork
+
+        if type(net) is not ConditionedSFNetwork or not _stateless_extractor(net):
+            return False
+        allowed = (nn.Linear, nn.LayerNorm, *_ACTIVATIONS.values())
+        for head in net.sf_net:
+            if type(head) is not ConditionedHead or type(head.state_features[1]) not in _ACTIVATIONS.values():
+                return False
+            for module in head.layers:
+                if type(module) not in allowed or (isinstance(module, nn.LayerNorm) and not module.elementwise_affine):
+                    return False
+                if isinstance(module, nn.Linear) and module.bias is None:
+                    return False
+        return True
+
+    def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
+        features = self.first.extract_features(obs_tensor, self.first.features_extractor)
+        x_weight = self.member_weights.expand(self.n_policies, len(features), self.reward_dim)
+        outputs = []
+        for (state_w, state_b), (weight_w, weight_b), layers in self.heads:
+            x = self.activation(features @ state_w + state_b) * self.activation(x_weight @ weight_w + weight_b)
+            for layer in layers:
+                if isinstance(layer, nn.Module):
+                    x = layer(x)
+                elif len(layer) == 2:
+                    x = x @ layer[0] + layer[1]
+                else:
+                    shape, eps, scale, shift = layer
+                    x = th.nn.functional.layer_norm(x, shape, eps=eps) * scale + shift
+            outputs.append(x)
+        psi = outputs[0] if len(outputs) == 1 else th.stack(outputs, dim=1).mean(dim=1)
+        return psi.view(self.n_policies, -1, self.n_actions, self.reward_dim)
 
 
 class StackedVmap:
@@ -232,7 +313,7 @@ class LeaveOneOut:
 
 
 #: A set's networks evaluated in one batched pass.
-Stacked = StackedTables | StackedMLP | StackedVmap | LeaveOneOut
+Stacked = StackedTables | StackedMLP | StackedConditioned | StackedVmap | LeaveOneOut
 
 
 def numpy_tables(stacked: Stacked) -> TypeGuard[StackedTables | LeaveOneOut]:
@@ -240,11 +321,13 @@ def numpy_tables(stacked: Stacked) -> TypeGuard[StackedTables | LeaveOneOut]:
     return isinstance(stacked, StackedTables) or (isinstance(stacked, LeaveOneOut) and stacked.tabular)
 
 
-def stack_networks(networks: list[nn.Module]) -> StackedTables | StackedMLP | StackedVmap:
+def stack_networks(networks: list[nn.Module]) -> StackedTables | StackedMLP | StackedConditioned | StackedVmap:
     """The fastest batched evaluator that fits the networks (all of one architecture)."""
     first = networks[0]
     if isinstance(first, TabularSFNetwork):
         return StackedTables(networks)  # type: ignore[arg-type]
     if StackedMLP.supports(first):
         return StackedMLP(networks)  # type: ignore[arg-type]
+    if StackedConditioned.supports(first):
+        return StackedConditioned(networks)
     return StackedVmap(networks)

@@ -1,6 +1,7 @@
 """The fast paths give the same results as the straightforward code they replace (no timing here: see benchmarks/).
 
-* GPI: the stacked tabular gather and the stacked MLP layers equal the generic ``vmap`` path;
+* GPI: the stacked tabular gather and the stacked MLP layers equal the generic ``vmap`` path, the stacked
+  weight-conditioned members equal it bit for bit;
 * replay sampling: one ``take`` per array equals indexing with (transition, env) index pairs, with the same random
   numbers drawn;
 * ``set_training_mode``: the same ``training`` flags as ``Module.train``;
@@ -19,6 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from momdp import Fig1MOMDP
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
 from sb3_sfgpi.common import checks
@@ -26,7 +28,8 @@ from sb3_sfgpi.common.buffers import MOReplayBuffer
 from sb3_sfgpi.common.checks import step_is_sound
 from sb3_sfgpi.gpi import GPIPolicy
 from sb3_sfgpi.sfdqn import SFDQN
-from sb3_sfgpi.stacking import StackedMLP, StackedTables, StackedVmap
+from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
+from sb3_sfgpi.stacking import StackedConditioned, StackedMLP, StackedTables, StackedVmap
 
 # --------------------------------------------------------------------------------------------------------------
 # GPI
@@ -54,6 +57,54 @@ def test_stacked_gpi_paths_equal_the_vmap_path(kind, make_random_mlp, make_rando
     # Adding a policy restacks.
     policy_set.add(make(99), weights=[1.0, 0.0, 0.0])
     assert policy_set.successor_features(observations).shape[0] == 7
+
+
+def _conditioned_member(seed: int, obs_dim: int, n_actions: int, net_arch: list[int], n_heads: int) -> nn.Module:
+    """A conditioned network with every parameter moved off its initial values, bound to Dirichlet(1) weights."""
+    th.manual_seed(seed)
+    space = spaces.Box(-1.0, 1.0, shape=(obs_dim,), dtype=np.float32)
+    extractor = FlattenExtractor(space)
+    net = ConditionedSFNetwork(
+        space, spaces.Discrete(n_actions), extractor, extractor.features_dim, 3, net_arch=net_arch, n_heads=n_heads
+    )
+    with th.no_grad():
+        for parameter in net.parameters():  # layer normalisations' scales and shifts too
+            parameter.add_(0.3 * th.randn_like(parameter))
+    return net.bound_to(np.random.default_rng(seed).dirichlet(np.ones(3)))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    n_members=st.integers(1, 12),
+    batch=st.sampled_from([1, 2, 3, 17, 52]),
+    net_arch=st.sampled_from([[16], [64, 64, 64], [32, 8]]),
+    n_heads=st.integers(1, 3),
+    obs_dim=st.integers(1, 8),
+    seed=st.integers(0, 10_000),
+)
+def test_stacked_conditioned_members_equal_the_vmap_path_bit_for_bit(
+    n_members, batch, net_arch, n_heads, obs_dim, seed
+):
+    members = [_conditioned_member(seed + i, obs_dim, 4, net_arch, n_heads) for i in range(n_members)]
+    assert StackedConditioned.supports(members[0])
+    obs = th.as_tensor(np.random.default_rng(seed).uniform(-1, 1, (batch, obs_dim)).astype(np.float32))
+    with th.no_grad():
+        stacked, reference = StackedConditioned(members).psi(obs), StackedVmap(members).psi(obs)
+    assert stacked.shape == (n_members, batch, 4, 3)
+    assert th.equal(stacked, reference)  # the same bits: GPI's decisions and a run's numbers do not move
+
+
+def test_a_set_of_conditioned_members_is_stacked_and_odd_ones_use_vmap():
+    policy_set = GPIPolicy()
+    for seed in range(3):
+        policy_set.add(_conditioned_member(seed, 5, 4, [16, 16], 2), weights=[1.0, 0.0, 0.0])
+    assert isinstance(policy_set._stack(), StackedConditioned)
+    odd = _conditioned_member(7, 5, 4, [16, 16], 2)
+    odd.sf_net[1].layers[1] = nn.LayerNorm(16, elementwise_affine=False)
+    assert not StackedConditioned.supports(odd)
+    odd_set = GPIPolicy()
+    odd_set.add(odd, weights=[0.0, 1.0, 0.0])
+    assert isinstance(odd_set._stack(), StackedVmap)
 
 
 def test_weights_are_validated_on_every_call_even_when_cached(make_random_tabular):
