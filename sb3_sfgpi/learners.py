@@ -181,11 +181,14 @@ def start_learning(
 def end_learning(learner: SFDQN, callback: BaseCallback) -> None:
     """
     End a learner's iteration: remove its optimism, end its callback, write its last logs and close the logger its
-    iteration opened (TensorBoard's writer and its thread; a logger the user set is the user's to close).
+    iteration opened (TensorBoard's writer and its thread; a logger the user set is the user's to close). The
+    callback's ``locals`` (SB3 hands callbacks the loop's ``locals()``, the callback itself among them) are cleared:
+    that cycle would keep the learner and its replay buffer until the garbage collector's oldest generation runs.
     """
     learner.remove_optimism()
     callback.on_rollout_end()
     callback.on_training_end()
+    callback.locals.clear()
     if learner._episode_num > 0:
         learner.dump_logs()
     if not learner._custom_logger:

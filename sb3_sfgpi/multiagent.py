@@ -497,6 +497,7 @@ class MultiAgentRunner:
         finally:
             bar.close()
         callback.on_training_end()
+        callback.locals.clear()  # this frame's locals hold the callback itself: a cycle that would keep the learners
         return self
 
     def _compiled_steps(self, callback: BaseCallback, steps: int) -> CompiledSteps | None:

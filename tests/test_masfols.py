@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import gc
 import json
+import weakref
 
 import numpy as np
 import pytest
@@ -66,6 +68,18 @@ def test_learn_returns_self_and_fills_history_and_policy_set():
         assert [entry["weights"] for entry in row["test"]] == TEST_WEIGHTS.tolist()
         assert np.isfinite(row["mean_return"])
     assert {info.agent for info in model.policy_set.infos} <= {"agent_0", "agent_1"}
+
+
+def test_an_iterations_learners_are_freed_by_reference_counts_when_the_next_replaces_them():
+    model = make(steps=100, weights="random")
+    gc.disable()  # no collection: only a release free of cycles frees them (and their replay buffers)
+    try:
+        model.learn(max_iterations=1)
+        first = [weakref.ref(learner) for learner in model.runner.learners.values()]
+        model.learn(max_iterations=2)
+        assert first and all(learner() is None for learner in first)
+    finally:
+        gc.enable()
 
 
 def test_ols_finds_the_optimum_and_stops_before_the_cap():
