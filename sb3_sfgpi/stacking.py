@@ -15,17 +15,22 @@ decision, more for conditioned networks, whose parameters ``functional_call`` sw
 from __future__ import annotations
 
 import copy
-from typing import TypeGuard
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 import torch as th
 from torch import nn
 from torch.func import functional_call, stack_module_state
+from torch.nn import functional as F
 
 from sb3_sfgpi.common.weights import weighted_sum
 from sb3_sfgpi.policy_files import _ACTIVATIONS
 from sb3_sfgpi.sfdqn.networks import SFNetwork
 from sb3_sfgpi.tabular.network import TabularSFNetwork
+
+if TYPE_CHECKING:
+    from sb3_sfgpi.sfdqn.conditioned import ConditionedSFNetwork
 
 
 class StackedTables:
@@ -145,13 +150,13 @@ class StackedTables:
         return weighted_sum(rows, each).reshape(-1, self.n_policies, self.n_actions)
 
 
-def _stacked_linears(linears: list[nn.Linear]) -> tuple[th.Tensor, th.Tensor]:
+def _stacked_linears(linears: list[Any]) -> tuple[th.Tensor, th.Tensor]:
     """The weights ``(P, in, out)`` and biases ``(P, 1, out)`` of ``P`` Linear layers."""
     weight = th.stack([lin.weight for lin in linears]).transpose(1, 2)
     return weight, th.stack([lin.bias for lin in linears]).unsqueeze(1)
 
 
-def _stateless_extractor(net: nn.Module) -> bool:
+def _stateless_extractor(net: Any) -> bool:
     """Whether a network's features extractor holds no parameters or buffers (its features serve every network)."""
     extractor = net.features_extractor
     return not any(True for _ in extractor.parameters()) and not any(True for _ in extractor.buffers())
@@ -205,6 +210,37 @@ class StackedMLP:
         return x.view(self.n_policies, -1, self.n_actions, self.reward_dim)
 
 
+#: One layer of ``P`` stacked networks: ``(P, batch, in)`` (or ``(batch, in)``, shared) -> ``(P, batch, out)``.
+Layer = Callable[[th.Tensor], th.Tensor]
+
+
+def _stacked_layer(modules: list[Any]) -> Layer:
+    """The same layer of ``P`` networks as one :data:`Layer` (as ``vmap`` computes it); an activation as it is."""
+    first = modules[0]
+    if isinstance(first, nn.Linear):
+        weight, bias = _stacked_linears(modules)
+        return lambda x: x @ weight + bias
+    if isinstance(first, nn.LayerNorm):
+        scale = th.stack([module.weight for module in modules]).unsqueeze(1)
+        shift = th.stack([module.bias for module in modules]).unsqueeze(1)
+        shape, eps = first.normalized_shape, first.eps
+        return lambda x: F.layer_norm(x, shape, eps=eps) * scale + shift
+    return first
+
+
+def _stacked_part(heads: list[Any], part: str) -> list[Layer]:
+    """The ``nn.Sequential`` named ``part`` of ``P`` heads, stacked layer by layer."""
+    sequentials = [getattr(head, part) for head in heads]
+    return [_stacked_layer([sequential[i] for sequential in sequentials]) for i in range(len(sequentials[0]))]
+
+
+def _through(layers: list[Layer], x: th.Tensor) -> th.Tensor:
+    """``x`` through ``layers`` in turn."""
+    for layer in layers:
+        x = layer(x)
+    return x
+
+
 class StackedConditioned:
     """
     Weight-conditioned SF networks (:class:`~sb3_sfgpi.sfdqn.conditioned.ConditionedSFNetwork`), each bound to its
@@ -213,29 +249,19 @@ class StackedConditioned:
     and shift: ``vmap``'s arithmetic, the same bits as :class:`StackedVmap` (``baddbmm``'s fused addition is not).
     """
 
-    def __init__(self, networks: list[nn.Module]):
+    def __init__(self, networks: list[ConditionedSFNetwork]):
         first = networks[0]
         self.first = first
         self.n_policies, self.n_actions, self.reward_dim = len(networks), first.n_actions, first.reward_dim
-        self.member_weights = th.stack([net.member_weights for net in networks]).unsqueeze(1)  # (P, 1, d)
-        self.heads: list[tuple[tuple[th.Tensor, th.Tensor], tuple[th.Tensor, th.Tensor], list]] = []
+        weights: list[Any] = [net.member_weights for net in networks]
+        self.member_weights = th.stack(weights).unsqueeze(1)  # (P, 1, d)
+        #: per head: its state features, its weight features (each a layer and an activation), then its layers
+        self.heads: list[tuple[list[Layer], list[Layer], list[Layer]]] = []
         with th.no_grad():
-            for h, head in enumerate(first.sf_net):
+            for h in range(len(first.sf_net)):
                 each = [net.sf_net[h] for net in networks]
-                state = _stacked_linears([one.state_features[0] for one in each])
-                weight = _stacked_linears([one.weight_features[0] for one in each])
-                layers: list = []
-                for i, module in enumerate(head.layers):
-                    if isinstance(module, nn.Linear):
-                        layers.append(_stacked_linears([one.layers[i] for one in each]))
-                    elif isinstance(module, nn.LayerNorm):
-                        scale = th.stack([one.layers[i].weight for one in each]).unsqueeze(1)
-                        shift = th.stack([one.layers[i].bias for one in each]).unsqueeze(1)
-                        layers.append((module.normalized_shape, module.eps, scale, shift))
-                    else:
-                        layers.append(module)
-                self.heads.append((state, weight, layers))
-        self.activation = first.sf_net[0].state_features[1]
+                parts = (_stacked_part(each, part) for part in ("state_features", "weight_features", "layers"))
+                self.heads.append(tuple(parts))  # type: ignore[arg-type]
 
     @staticmethod
     def supports(net: nn.Module) -> bool:
@@ -244,32 +270,25 @@ class StackedConditioned:
 
         if type(net) is not ConditionedSFNetwork or not _stateless_extractor(net):
             return False
-        allowed = (nn.Linear, nn.LayerNorm, *_ACTIVATIONS.values())
+        activations = tuple(_ACTIVATIONS.values())
         for head in net.sf_net:
-            if type(head) is not ConditionedHead or type(head.state_features[1]) not in _ACTIVATIONS.values():
+            if type(head) is not ConditionedHead:
                 return False
-            for module in head.layers:
-                if type(module) not in allowed or (isinstance(module, nn.LayerNorm) and not module.elementwise_affine):
-                    return False
-                if isinstance(module, nn.Linear) and module.bias is None:
+            for module in [*head.state_features, *head.weight_features, *head.layers]:
+                if type(module) in (nn.Linear, nn.LayerNorm):
+                    if module.weight is None or module.bias is None:  # e.g. a layer normalisation without affine
+                        return False
+                elif type(module) not in activations:
                     return False
         return True
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         features = self.first.extract_features(obs_tensor, self.first.features_extractor)
-        x_weight = self.member_weights.expand(self.n_policies, len(features), self.reward_dim)
+        weights = self.member_weights.expand(self.n_policies, len(features), self.reward_dim)
         outputs = []
-        for (state_w, state_b), (weight_w, weight_b), layers in self.heads:
-            x = self.activation(features @ state_w + state_b) * self.activation(x_weight @ weight_w + weight_b)
-            for layer in layers:
-                if isinstance(layer, nn.Module):
-                    x = layer(x)
-                elif len(layer) == 2:
-                    x = x @ layer[0] + layer[1]
-                else:
-                    shape, eps, scale, shift = layer
-                    x = th.nn.functional.layer_norm(x, shape, eps=eps) * scale + shift
-            outputs.append(x)
+        for state_features, weight_features, layers in self.heads:
+            x = _through(state_features, features) * _through(weight_features, weights)
+            outputs.append(_through(layers, x))
         psi = outputs[0] if len(outputs) == 1 else th.stack(outputs, dim=1).mean(dim=1)
         return psi.view(self.n_policies, -1, self.n_actions, self.reward_dim)
 
@@ -329,5 +348,5 @@ def stack_networks(networks: list[nn.Module]) -> StackedTables | StackedMLP | St
     if StackedMLP.supports(first):
         return StackedMLP(networks)  # type: ignore[arg-type]
     if StackedConditioned.supports(first):
-        return StackedConditioned(networks)
+        return StackedConditioned(networks)  # type: ignore[arg-type]
     return StackedVmap(networks)
