@@ -162,6 +162,21 @@ def _stateless_extractor(net: Any) -> bool:
     return not any(True for _ in extractor.parameters()) and not any(True for _ in extractor.buffers())
 
 
+def _plain_layers(modules: Any, weighted: tuple[type[nn.Module], ...]) -> bool:
+    """
+    Whether every module is one of the ``weighted`` layer types with its weight and bias (not a subclass, which may
+    compute otherwise; e.g. a layer normalisation without affine has neither) or an activation the files know.
+    """
+    activations = tuple(_ACTIVATIONS.values())
+    for module in modules:
+        if type(module) in weighted:
+            if module.weight is None or module.bias is None:
+                return False
+        elif type(module) not in activations:
+            return False
+    return True
+
+
 class StackedMLP:
     """
     MLP SF networks stacked layer by layer: weights ``(P, in, out)``, biases ``(P, 1, out)`` for ``P`` networks.
@@ -188,16 +203,7 @@ class StackedMLP:
         """An MLP SF network whose features extractor holds no state and whose layers are Linear or activations."""
         if type(net) is not SFNetwork or not isinstance(net.sf_net, nn.Sequential):  # a subclass may add layers
             return False
-        if not _stateless_extractor(net):
-            return False
-        allowed = tuple(_ACTIVATIONS.values())
-        for module in net.sf_net:
-            if isinstance(module, nn.Linear):
-                if module.bias is None:
-                    return False
-            elif type(module) not in allowed:
-                return False
-        return True
+        return _stateless_extractor(net) and _plain_layers(net.sf_net, (nn.Linear,))
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         features = self.first.extract_features(obs_tensor, self.first.features_extractor)
@@ -270,17 +276,11 @@ class StackedConditioned:
 
         if type(net) is not ConditionedSFNetwork or not _stateless_extractor(net):
             return False
-        activations = tuple(_ACTIVATIONS.values())
-        for head in net.sf_net:
-            if type(head) is not ConditionedHead:
-                return False
-            for module in [*head.state_features, *head.weight_features, *head.layers]:
-                if type(module) in (nn.Linear, nn.LayerNorm):
-                    if module.weight is None or module.bias is None:  # e.g. a layer normalisation without affine
-                        return False
-                elif type(module) not in activations:
-                    return False
-        return True
+        return all(
+            type(head) is ConditionedHead
+            and _plain_layers([*head.state_features, *head.weight_features, *head.layers], (nn.Linear, nn.LayerNorm))
+            for head in net.sf_net
+        )
 
     def psi(self, obs_tensor: th.Tensor) -> th.Tensor:
         features = self.first.extract_features(obs_tensor, self.first.features_extractor)
