@@ -48,8 +48,9 @@ LEARNER_ARGUMENTS = frozenset(
 REPLAY_BUFFER_NAMES = ("MOReplayBuffer", "PrioritizedMOReplayBuffer")
 #: Replay buffer arguments a run file may set (the prioritised buffer's, numbers).
 REPLAY_BUFFER_ARGUMENTS = frozenset({"alpha", "min_priority"})
-#: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads``: a conditioned network's).
-POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads"})
+#: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads``, ``gpi_targets``: a
+#: conditioned network's).
+POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads", "gpi_targets"})
 _MAX_WIDTH = 1 << 16
 _MAX_HEADS = 16
 
@@ -57,7 +58,8 @@ _MAX_HEADS = 16
 def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
     """
     Refuse learner arguments of a run file that are not on :data:`LEARNER_ARGUMENTS` (or, in ``policy_kwargs``, on
-    :data:`POLICY_ARGUMENTS`, ``net_arch`` a short list of positive widths, ``n_heads`` a small positive count).
+    :data:`POLICY_ARGUMENTS`, ``net_arch`` a short list of positive widths, ``n_heads`` a small positive count,
+    ``gpi_targets`` a small count).
 
     :param source: the file, named in the error
     :raises ValueError: naming the argument
@@ -81,6 +83,9 @@ def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
     n_heads = policy_kwargs.get("n_heads", 1)
     if isinstance(n_heads, bool) or not isinstance(n_heads, int) or not 1 <= n_heads <= _MAX_HEADS:
         raise ValueError(f"{source}: 'n_heads' must be an integer in [1, {_MAX_HEADS}], got {n_heads!r}")
+    gpi_targets = policy_kwargs.get("gpi_targets", 0)
+    if isinstance(gpi_targets, bool) or not isinstance(gpi_targets, int) or not 0 <= gpi_targets <= _MAX_WIDTH:
+        raise ValueError(f"{source}: 'gpi_targets' must be an integer in [0, {_MAX_WIDTH}], got {gpi_targets!r}")
 
 
 def _check_replay_buffer(kwargs: Mapping[str, Any], source: str) -> None:

@@ -146,6 +146,36 @@ def test_the_target_bootstraps_from_the_lowest_head_and_every_head_learns_it():
         SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(n_heads=0))
 
 
+def test_a_gpi_target_bootstraps_from_the_best_weight_and_action_of_the_lowest_heads_by_brute_force():
+    model = SFDQN(
+        "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), weights=SUPPORT[0], gamma=GAMMA, batch_size=8,
+        learning_starts=0, policy_kwargs=dict(net_arch=[16, 16], n_heads=3, gpi_targets=2), seed=0,
+    )  # fmt: skip
+    support = np.array([[0.8, 0.2], [0.3, 0.7], [0.5, 0.5], [0.1, 0.9]])
+    model.set_weight_support(support)
+    model.learn(20)
+    policy, batch = model.policy, model.replay_buffer.sample(8)
+    rows_w = th.as_tensor(np.random.default_rng(3).dirichlet(np.ones(2), 8), dtype=th.float32, device=policy.device)
+    th.manual_seed(7)
+    with th.no_grad():
+        target = policy._gpi_bootstrap(batch.next_observations, rows_w, None)
+    th.manual_seed(7)
+    drawn = policy.support[th.randperm(len(policy.support), device=policy.support.device)[:2]]
+    assert len(drawn) == 2
+    for i, w in enumerate(rows_w):
+        best, expected = -np.inf, None
+        for w_policy in [w, *drawn]:  # the row's own weights and the drawn ones
+            with th.no_grad():
+                heads = policy.sf_net_target.heads(batch.next_observations[i : i + 1], w_policy)[:, 0]  # (3, A, d)
+            for a in range(heads.shape[1]):
+                lowest = heads[(heads[:, a] @ w).argmin(), a]
+                if (lowest @ w).item() > best:
+                    best, expected = (lowest @ w).item(), lowest
+        th.testing.assert_close(target[i], expected, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="gpi_targets must be a non-negative integer"):
+        SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(gpi_targets=-1))
+
+
 def test_exploration_steps_count_across_calls_of_learn():
     model = SFDQN(
         "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), exploration_steps=100, exploration_final_eps=0.1,

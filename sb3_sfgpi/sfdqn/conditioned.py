@@ -143,6 +143,10 @@ class ConditionedPolicy(SFDQNPolicy):
     The target of a transition for weight ``w'`` is ``r + γ (1 − terminated) ψ_target(s', a*, w')`` with
     ``a* = argmax_a w' · ψ(s', a, w')`` (online network picks, target network evaluates) and, with several heads,
     ``ψ_target`` the target head of lowest ``w' · ψ`` there (an overestimate of one head is not bootstrapped).
+    With ``gpi_targets = k`` the target bootstraps by GPI instead (GPI-PD's and the SFOLS authors' target):
+    ``ψ_target(s', a*, w*)`` with ``(w*, a*) = argmax_{w'' ∈ {w'} ∪ K, a} w' · ψ_target(s', a, w'')`` over ``K``,
+    ``k`` support weights drawn for the minibatch, each target network's value the lowest of its heads: where another
+    weight's policy does better for ``w'`` from ``s'``, the target says so.
 
     Acting for weights ``w`` is GPI over the support and ``w`` itself:
     ``argmax_a max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``: what the network learned for the other weights of
@@ -154,6 +158,7 @@ class ConditionedPolicy(SFDQNPolicy):
     :param reward_dim: Number of objectives ``d``
     :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
     :param n_heads: Number of heads of the network (:data:`CONDITIONED_HEADS` by default)
+    :param gpi_targets: how many support weights the TD target also bootstraps from by GPI (0: none)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate (default: ``foreach``)
     :param kwargs: further :class:`~sb3_sfgpi.sfdqn.policies.SFDQNPolicy` arguments
     """
@@ -167,9 +172,13 @@ class ConditionedPolicy(SFDQNPolicy):
         *args: Any,
         net_arch: list[int] | None = None,
         n_heads: int = CONDITIONED_HEADS,
+        gpi_targets: int = 0,
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
+        if isinstance(gpi_targets, bool) or not isinstance(gpi_targets, int) or gpi_targets < 0:
+            raise ValueError(f"gpi_targets must be a non-negative integer, got {gpi_targets!r}")
+        self.gpi_targets = gpi_targets
         # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them (unless
         # told otherwise, or to fuse them)
         optimizer_kwargs = dict(optimizer_kwargs or {})
@@ -257,12 +266,41 @@ class ConditionedPolicy(SFDQNPolicy):
         masks = None if batch.next_action_masks is None else repeated(batch.next_action_masks)
         rows = th.arange(len(weights), device=weights.device)
         with th.no_grad():
-            next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
-            target_heads = self.sf_net_target.heads(next_observations, weights)[:, rows, next_actions]
-            lowest = weighted_sum(target_heads, weights).argmin(dim=0)
-            target_psi = repeated(batch.rewards) + (1 - repeated(batch.dones)) * gamma * target_heads[lowest, rows]
+            if self.gpi_targets and len(self.support) > 1:
+                next_psi = self._gpi_bootstrap(next_observations, weights, masks)
+            else:
+                next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
+                target_heads = self.sf_net_target.heads(next_observations, weights)[:, rows, next_actions]
+                next_psi = target_heads[weighted_sum(target_heads, weights).argmin(dim=0), rows]
+            target_psi = repeated(batch.rewards) + (1 - repeated(batch.dones)) * gamma * next_psi
         current_heads = self.sf_net.heads(observations, weights)[:, rows, repeated(batch.actions).long().flatten()]
         return current_heads, target_psi
 
+    def _gpi_bootstrap(self, next_observations: th.Tensor, weights: th.Tensor, masks: th.Tensor | None) -> th.Tensor:
+        """
+        GPI's ``ψ_target(s', a*, w*)`` for each row's weights ``w`` (see the class), shape ``(rows, d)``.
+
+        :param next_observations: ``s'`` of each row, shape ``(rows, ...)``
+        :param weights: each row's ``w``, shape ``(rows, d)``
+        :param masks: True for the actions each ``s'`` has, shape ``(rows, n_actions)``, or None
+        """
+        n_rows, support = len(weights), self.support.to(weights.device)
+        drawn = support[th.randperm(len(support), device=support.device)[: self.gpi_targets]]
+        policies = th.cat([weights, drawn.repeat_interleave(n_rows, dim=0)])  # each row's own, then each drawn one
+        copies = len(drawn) + 1
+        heads = self.sf_net_target.heads(
+            next_observations.repeat(copies, *([1] * (next_observations.dim() - 1))), policies
+        )
+        values = weighted_sum(heads, weights.repeat(copies, 1).unsqueeze(1))  # (n_heads, copies · rows, n_actions)
+        lowest = values.argmin(dim=0, keepdim=True)
+        psi = heads.gather(0, lowest.unsqueeze(-1).expand(1, *heads.shape[1:])).squeeze(0)  # (copies · rows, A, d)
+        q_values = values.gather(0, lowest).squeeze(0)
+        if masks is not None:
+            q_values = q_values.masked_fill(~masks.repeat(copies, 1), -th.inf)
+        n_actions = q_values.shape[-1]
+        best = q_values.view(copies, n_rows, n_actions).permute(1, 0, 2).reshape(n_rows, -1).argmax(dim=1)
+        chosen = (best // n_actions) * n_rows + th.arange(n_rows, device=best.device)  # the policy's row
+        return psi[chosen, best % n_actions]
+
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "n_heads": self.n_heads}
+        return {**super()._get_constructor_parameters(), "n_heads": self.n_heads, "gpi_targets": self.gpi_targets}
