@@ -32,6 +32,7 @@ import traceback
 from pathlib import Path
 
 from benchmarks._common import Row, single_thread_torch
+from sb3_sfgpi.common.software import DISTRIBUTIONS, cpu_model, software_versions
 
 BENCHMARKS = {
     "gpi": "benchmarks.bench_gpi",
@@ -59,16 +60,6 @@ BENCHMARKS = {
 ON_REQUEST = ("sweep-fig4-preset", "known-fronts", "deep-fronts", "momaland")
 
 
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def _gpu() -> str:
     """The CUDA card the deep learners use by default (``device="auto"``), or none."""
     import torch
@@ -79,32 +70,16 @@ def _gpu() -> str:
 
 
 def _versions() -> str:
-    import numpy
-    import scipy
-    import stable_baselines3
-    import torch
-
-    parts = [
-        f"Python {platform.python_version()}",
-        f"torch {torch.__version__}",
-        f"SB3 {stable_baselines3.__version__}",
-        f"numpy {numpy.__version__}",
-        f"scipy {scipy.__version__}",
-    ]
-    try:
-        import libsumo
-
-        parts.append(f"{libsumo.getVersion()[1]} (libsumo)")
-    except Exception:  # noqa: BLE001 - SUMO is optional for the header
-        pass
-    return ", ".join(parts)
+    """The versions of what the numbers depend on (:func:`~sb3_sfgpi.common.software.software_versions`)."""
+    versions = software_versions()
+    return ", ".join(f"{name} {versions[name]}" for name in ("python", *DISTRIBUTIONS) if name in versions)
 
 
 def header(argv: list[str]) -> str:
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "?"
     return "\n".join(
         [
-            f"- Machine: {_cpu_model()}, {os.cpu_count()} logical cores ({platform.system()} {platform.release()}), "
+            f"- Machine: {cpu_model()}, {os.cpu_count()} logical cores ({platform.system()} {platform.release()}), "
             f"load average at start {load}; torch limited to 1 thread",
             f"- GPU: {_gpu()}",
             f"- Versions: {_versions()}",

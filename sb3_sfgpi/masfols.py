@@ -20,6 +20,7 @@ from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_sfgpi.admission import Admission
 from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation, learn_iterations
+from sb3_sfgpi.common.software import software_versions
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import EvaluationConfig
 from sb3_sfgpi.gpi import GPIPolicy
@@ -261,6 +262,7 @@ class MASFOLS:
                 if self.run_dir.has_checkpoint():
                     raise ValueError(f"{self.run_dir} already holds a run: continue it with MASFOLS.load")
                 self.run_dir.write_config(self.run_info)
+            self.run_dir.record_software(software_versions())
             if not self._logs_open:  # once: a later learn() goes on writing to the same files
                 self.runner.set_logger(run_logger(self.run_dir))  # continues logs/ where the checkpoint left it
                 self._logs_open = True

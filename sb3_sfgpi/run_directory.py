@@ -11,6 +11,8 @@ Layout (no other module spells these names)::
                        vector returns of GPI (discounted and not) and the last infos
     evaluation.csv     per iteration: the summary row
     checkpoint.json    the schedule's state (OLS), next iteration and its weights, number of policies in Π
+    software.json      per training process (a new run, each resume): the iteration it started from and what it ran
+                       on (:func:`~sb3_sfgpi.common.software.software_versions`); read by no command
     learners/          with learners that go on across iterations (``ConditionedMlpPolicy``): their state after the
                        checkpoint's iteration (``iteration_003.pt``: tensors and plain numbers, see
                        :mod:`sb3_sfgpi.sfdqn.training_state`)
@@ -144,6 +146,7 @@ class RunDirectory:
 
     RUN = "run.json"
     CHECKPOINT = "checkpoint.json"
+    SOFTWARE = "software.json"
     EVALUATION_JSON = "evaluation.json"
     EVALUATION_CSV = "evaluation.csv"
 
@@ -284,6 +287,20 @@ class RunDirectory:
         writer.writerows(history)
         atomic_write_bytes(self.path / self.EVALUATION_CSV, out.getvalue().encode())
         atomic_write_json(self.path / self.CHECKPOINT, checkpoint)
+
+    def record_software(self, versions: dict[str, str]) -> None:
+        """
+        Add a training process's machine and package versions to ``software.json``, with the iteration it starts
+        from (that of the checkpoint, 0 without one).
+
+        :raises ValueError: a ``software.json`` that is not a list of records
+        """
+        path = self.path / self.SOFTWARE
+        records = read_json(path, "software record") if path.exists() else []
+        if not isinstance(records, list):
+            raise ValueError(f"software record {path} is not a JSON list: move it away to go on")
+        iteration = self.read_checkpoint()["iteration"] if self.has_checkpoint() else 0
+        atomic_write_json(path, [*records, {"from_iteration": iteration, **versions}])
 
     def read_checkpoint(self) -> dict[str, Any]:
         """

@@ -241,6 +241,9 @@ def test_an_existing_runs_logs_survive_a_refused_learn_and_a_load(tmp_path):
     assert progress.read_text() == before
     MASFOLS.load(tmp_path, ParallelChainEnv(2)).learn(max_iterations=3)
     assert len(progress.read_text().splitlines()) == 4
+    software = json.loads((tmp_path / "software.json").read_text())  # the new run's process, then the resumed one's
+    assert [record["from_iteration"] for record in software] == [0, 2]
+    assert all(record["torch"] == th.__version__ and record["numpy"] == np.__version__ for record in software)
 
 
 def test_a_killed_iterations_logs_are_replaced_on_resume(tmp_path):

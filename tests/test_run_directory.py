@@ -242,3 +242,15 @@ def test_files_written_atomically_get_the_mode_the_umask_gives(tmp_path, umask, 
         os.umask(previous)
     assert stat.S_IMODE((tmp_path / "run.json").stat().st_mode) == mode
     assert json.loads((tmp_path / "run.json").read_text()) == {"a": 1}
+
+
+def test_software_records_each_training_process_from_the_checkpoints_iteration_and_refuses_another_file(tmp_path):
+    run = RunDirectory(tmp_path)
+    run.record_software({"torch": "1"})
+    run.write_iteration([row(1), row(2)], checkpoint(2))
+    run.record_software({"torch": "2"})
+    records = json.loads((tmp_path / "software.json").read_text())
+    assert records == [{"from_iteration": 0, "torch": "1"}, {"from_iteration": 2, "torch": "2"}]
+    (tmp_path / "software.json").write_text('{"torch": "1"}')
+    with pytest.raises(ValueError, match="software record .* is not a JSON list"):
+        run.record_software({"torch": "3"})
