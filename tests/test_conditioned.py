@@ -218,24 +218,17 @@ def test_one_learner_goes_on_over_the_iterations_for_the_support(three_iteration
         np.testing.assert_allclose(net.member_weights.cpu().numpy(), info.weights, atol=1e-7)
 
 
-def test_members_keep_the_network_they_joined_with():
-    """A member of Π is the learner's network as it was when the member joined; the learner goes on learning."""
-    model = _masfols()
-    model.learn(max_iterations=1)
-    first = model.callback.record.networks[0]
-    joined = {k: v.clone() for k, v in first.state_dict().items()}
-    model.learn(max_iterations=3)
-    assert model.callback.record.networks[0] is first
-    (learner,) = model.runner.learners.values()
-    latest = learner.policy.sf_net.state_dict()
-    assert all(th.equal(value, joined[key]) for key, value in first.state_dict().items())
-    assert not all(th.equal(value.cpu(), latest[key].cpu()) for key, value in joined.items() if key != "member_weights")
-
-
-def test_a_resumed_run_goes_on_exactly(three_iterations, tmp_path):
-    _masfols(tmp_path / "run").learn(max_iterations=1)
+def test_a_resumed_run_goes_on_exactly_and_members_keep_the_network_they_joined_with(three_iterations, tmp_path):
+    """A run resumed after its first iteration ends as the one never stopped; its first member of Π is still the
+    learner's network as it was when the member joined, while the learner went on learning."""
+    first = _masfols(tmp_path / "run").learn(max_iterations=1).callback.record.networks[0]
+    joined = {key: value.clone() for key, value in first.state_dict().items()}
     resumed = MASFOLS.load(tmp_path / "run", Fig1MOMDP(one_hot=True))
     resumed.learn(max_iterations=3)
+    kept = resumed.callback.record.networks[0].state_dict()
+    assert all(th.equal(value.cpu(), kept[key].cpu()) for key, value in joined.items())
+    latest = next(iter(resumed.runner.learners.values())).policy.sf_net.state_dict()
+    assert not all(th.equal(value.cpu(), latest[key].cpu()) for key, value in joined.items() if key != "member_weights")
     assert [row["mean_return"] for row in resumed.history] == [row["mean_return"] for row in three_iterations.history]
     (learner,) = resumed.runner.learners.values()
     (reference,) = three_iterations.runner.learners.values()
