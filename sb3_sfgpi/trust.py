@@ -52,7 +52,8 @@ REPLAY_BUFFER_ARGUMENTS = frozenset({"alpha", "min_priority"})
 #: conditioned network's).
 POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads", "gpi_targets"})
 _MAX_WIDTH = 1 << 16
-_MAX_HEADS = 16
+#: A conditioned network's counts a run file may set, each with its least (also its default) and largest value.
+_POLICY_COUNTS = {"n_heads": (1, 16), "gpi_targets": (0, 1 << 16)}
 
 
 def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
@@ -80,12 +81,10 @@ def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
     ):
         raise ValueError(f"{source}: 'net_arch' must be a list of at most 16 widths in [1, {_MAX_WIDTH}]")
     _check_replay_buffer(kwargs, source)
-    n_heads = policy_kwargs.get("n_heads", 1)
-    if isinstance(n_heads, bool) or not isinstance(n_heads, int) or not 1 <= n_heads <= _MAX_HEADS:
-        raise ValueError(f"{source}: 'n_heads' must be an integer in [1, {_MAX_HEADS}], got {n_heads!r}")
-    gpi_targets = policy_kwargs.get("gpi_targets", 0)
-    if isinstance(gpi_targets, bool) or not isinstance(gpi_targets, int) or not 0 <= gpi_targets <= _MAX_WIDTH:
-        raise ValueError(f"{source}: 'gpi_targets' must be an integer in [0, {_MAX_WIDTH}], got {gpi_targets!r}")
+    for name, (low, high) in _POLICY_COUNTS.items():
+        count = policy_kwargs.get(name, low)
+        if isinstance(count, bool) or not isinstance(count, int) or not low <= count <= high:
+            raise ValueError(f"{source}: {name!r} must be an integer in [{low}, {high}], got {count!r}")
 
 
 def _check_replay_buffer(kwargs: Mapping[str, Any], source: str) -> None:
