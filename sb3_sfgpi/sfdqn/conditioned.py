@@ -143,10 +143,15 @@ class ConditionedPolicy(SFDQNPolicy):
     The target of a transition for weight ``w'`` is ``r + γ (1 − terminated) ψ_target(s', a*, w')`` with
     ``a* = argmax_a w' · ψ(s', a, w')`` (online network picks, target network evaluates) and, with several heads,
     ``ψ_target`` the target head of lowest ``w' · ψ`` there (an overestimate of one head is not bootstrapped).
-    With ``gpi_targets = k`` the target bootstraps by GPI instead (GPI-PD's and the SFOLS authors' target):
+    With ``gpi_targets = k`` the target bootstraps by GPI instead (the SFOLS authors' target):
     ``ψ_target(s', a*, w*)`` with ``(w*, a*) = argmax_{w'' ∈ {w'} ∪ K, a} w' · ψ_target(s', a, w'')`` over ``K``,
     ``k`` support weights drawn for the minibatch, each target network's value the lowest of its heads: where another
     weight's policy does better for ``w'`` from ``s'``, the target says so.
+
+    With prioritised replay a transition's priority is its error for ``w`` (the head that errs most). With
+    ``gpi_priorities = k`` it is its error against GPI's target over ``w`` and ``k`` drawn support weights (GPI-PD's
+    prioritisation): the loss is unchanged, but a transition from which another weight's policy does better than the
+    learner believes is drawn sooner.
 
     Acting for weights ``w`` is GPI over the support and ``w`` itself:
     ``argmax_a max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``: what the network learned for the other weights of
@@ -159,6 +164,8 @@ class ConditionedPolicy(SFDQNPolicy):
     :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
     :param n_heads: Number of heads of the network (:data:`CONDITIONED_HEADS` by default)
     :param gpi_targets: how many support weights the TD target also bootstraps from by GPI (0: none)
+    :param gpi_priorities: how many support weights the priorities' target also bootstraps from by GPI (0: the
+        priorities are the errors of the TD target)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate (default: ``foreach``)
     :param kwargs: further :class:`~sb3_sfgpi.sfdqn.policies.SFDQNPolicy` arguments
     """
@@ -173,12 +180,14 @@ class ConditionedPolicy(SFDQNPolicy):
         net_arch: list[int] | None = None,
         n_heads: int = CONDITIONED_HEADS,
         gpi_targets: int = 0,
+        gpi_priorities: int = 0,
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
-        if isinstance(gpi_targets, bool) or not isinstance(gpi_targets, int) or gpi_targets < 0:
-            raise ValueError(f"gpi_targets must be a non-negative integer, got {gpi_targets!r}")
-        self.gpi_targets = gpi_targets
+        for name, count in (("gpi_targets", gpi_targets), ("gpi_priorities", gpi_priorities)):
+            if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+                raise ValueError(f"{name} must be a non-negative integer, got {count!r}")
+        self.gpi_targets, self.gpi_priorities = gpi_targets, gpi_priorities
         # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them (unless
         # told otherwise, or to fuse them)
         optimizer_kwargs = dict(optimizer_kwargs or {})
@@ -235,16 +244,24 @@ class ConditionedPolicy(SFDQNPolicy):
             weights = th.cat([weights, self.support[drawn].to(weights.device)])
         current_heads, target_psi = self._heads_and_target(batch, weights, gamma)
         own = slice(0, batch_size)  # the rows learned for the policy's weights: their errors are the priorities
-        self.give_back_errors(replay_buffer, batch, current_heads[:, own].detach(), target_psi[own])
+        self.give_back_errors(
+            replay_buffer,
+            batch,
+            current_heads[:, own].detach(),
+            self._priority_target(batch, weights[own], gamma, target_psi[own]),
+        )
         loss = F.smooth_l1_loss(current_heads, target_psi.expand_as(current_heads), reduction="none")
         return self.gradient_step(loss.mean(dim=(1, 2)).sum(), max_grad_norm)
 
     def current_and_target(self, batch: MOReplayBufferSamples, gamma: float) -> tuple[th.Tensor, th.Tensor]:
         """
         Each head's ``ψ(s, a, w)`` of the sampled transitions for the policy's weights ``w`` (with its gradient),
-        shape ``(n_heads, batch, d)``, and their TD target (see the class), shape ``(batch, d)``.
+        shape ``(n_heads, batch, d)``, and the target their priorities are measured against (see the class: the TD
+        target, or GPI's with ``gpi_priorities``), shape ``(batch, d)``.
         """
-        return self._heads_and_target(batch, self.weights.expand(len(batch.rewards), -1), gamma)
+        weights = self.weights.expand(len(batch.rewards), -1)
+        current_heads, target_psi = self._heads_and_target(batch, weights, gamma)
+        return current_heads, self._priority_target(batch, weights, gamma, target_psi)
 
     def weighted_errors(self, current_psi: th.Tensor, target_psi: th.Tensor) -> th.Tensor:
         """``|w · (ψ(s, a, w) − target)|`` of the head that errs most, shape ``(batch,)``."""
@@ -267,7 +284,7 @@ class ConditionedPolicy(SFDQNPolicy):
         rows = th.arange(len(weights), device=weights.device)
         with th.no_grad():
             if self.gpi_targets and len(self.support) > 1:
-                next_psi = self._gpi_bootstrap(next_observations, weights, masks)
+                next_psi = self._gpi_bootstrap(next_observations, weights, masks, self.gpi_targets)
             else:
                 next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
                 target_heads = self.sf_net_target.heads(next_observations, weights)[:, rows, next_actions]
@@ -276,16 +293,35 @@ class ConditionedPolicy(SFDQNPolicy):
         current_heads = self.sf_net.heads(observations, weights)[:, rows, repeated(batch.actions).long().flatten()]
         return current_heads, target_psi
 
-    def _gpi_bootstrap(self, next_observations: th.Tensor, weights: th.Tensor, masks: th.Tensor | None) -> th.Tensor:
+    @th.no_grad()
+    def _priority_target(
+        self, batch: MOReplayBufferSamples, weights: th.Tensor, gamma: float, target_psi: th.Tensor
+    ) -> th.Tensor:
         """
-        GPI's ``ψ_target(s', a*, w*)`` for each row's weights ``w`` (see the class), shape ``(rows, d)``.
+        The target the priorities of ``batch`` are measured against: ``target_psi`` (its TD target for the policy's
+        weights), or with ``gpi_priorities`` and a support of several weights GPI's target (see the class).
+
+        :param weights: the policy's weights for each row, shape ``(batch, d)``
+        """
+        if not (self.gpi_priorities and len(self.support) > 1):
+            return target_psi
+        next_psi = self._gpi_bootstrap(batch.next_observations, weights, batch.next_action_masks, self.gpi_priorities)  # type: ignore[arg-type]
+        return batch.rewards + (1 - batch.dones) * gamma * next_psi
+
+    def _gpi_bootstrap(
+        self, next_observations: th.Tensor, weights: th.Tensor, masks: th.Tensor | None, k: int
+    ) -> th.Tensor:
+        """
+        GPI's ``ψ_target(s', a*, w*)`` for each row's weights ``w`` over ``w`` and ``k`` support weights drawn
+        uniformly without replacement (see the class), shape ``(rows, d)``.
 
         :param next_observations: ``s'`` of each row, shape ``(rows, ...)``
         :param weights: each row's ``w``, shape ``(rows, d)``
         :param masks: True for the actions each ``s'`` has, shape ``(rows, n_actions)``, or None
+        :param k: how many support weights to draw
         """
         n_rows, support = len(weights), self.support.to(weights.device)
-        drawn = support[th.randperm(len(support), device=support.device)[: self.gpi_targets]]
+        drawn = support[th.randperm(len(support), device=support.device)[:k]]
         policies = th.cat([weights, drawn.repeat_interleave(n_rows, dim=0)])  # each row's own, then each drawn one
         copies = len(drawn) + 1
         heads = self.sf_net_target.heads(
@@ -303,4 +339,5 @@ class ConditionedPolicy(SFDQNPolicy):
         return psi[chosen, best % n_actions]
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "n_heads": self.n_heads, "gpi_targets": self.gpi_targets}
+        counts = {"n_heads": self.n_heads, "gpi_targets": self.gpi_targets, "gpi_priorities": self.gpi_priorities}
+        return {**super()._get_constructor_parameters(), **counts}
