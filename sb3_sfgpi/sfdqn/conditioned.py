@@ -143,14 +143,12 @@ class ConditionedPolicy(SFDQNPolicy):
     The target of a transition for weight ``w'`` is ``r + γ (1 − terminated) ψ_target(s', a*, w')`` with
     ``a* = argmax_a w' · ψ(s', a, w')`` (online network picks, target network evaluates) and, with several heads,
     ``ψ_target`` the target head of lowest ``w' · ψ`` there (an overestimate of one head is not bootstrapped).
-    With ``gpi_targets = k`` the target bootstraps by GPI instead (the SFOLS authors' target):
-    ``ψ_target(s', a*, w*)`` with ``(w*, a*) = argmax_{w'' ∈ {w'} ∪ K, a} w' · ψ_target(s', a, w'')`` over ``K``,
-    ``k`` support weights drawn for the minibatch, each target network's value the lowest of its heads: where another
-    weight's policy does better for ``w'`` from ``s'``, the target says so.
 
     With prioritised replay a transition's priority is its error for ``w`` (the head that errs most). With
-    ``gpi_priorities = k`` it is its error against GPI's target over ``w`` and ``k`` drawn support weights (GPI-PD's
-    prioritisation): the loss is unchanged, but a transition from which another weight's policy does better than the
+    ``gpi_priorities = k`` it is its error against GPI's target instead (GPI-PD's prioritisation):
+    ``r + γ (1 − terminated) ψ_target(s', a*, w*)`` with ``(w*, a*) = argmax_{w'' ∈ {w} ∪ K, a} w · ψ_target(s', a,
+    w'')`` over ``K``, ``k`` support weights drawn for the minibatch, each target network's value the lowest of its
+    heads. The loss is unchanged, but a transition from which another weight's policy does better for ``w`` than the
     learner believes is drawn sooner.
 
     Acting for weights ``w`` is GPI over the support and ``w`` itself:
@@ -163,7 +161,6 @@ class ConditionedPolicy(SFDQNPolicy):
     :param reward_dim: Number of objectives ``d``
     :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
     :param n_heads: Number of heads of the network (:data:`CONDITIONED_HEADS` by default)
-    :param gpi_targets: how many support weights the TD target also bootstraps from by GPI (0: none)
     :param gpi_priorities: how many support weights the priorities' target also bootstraps from by GPI (0: the
         priorities are the errors of the TD target)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate (default: ``foreach``)
@@ -179,15 +176,13 @@ class ConditionedPolicy(SFDQNPolicy):
         *args: Any,
         net_arch: list[int] | None = None,
         n_heads: int = CONDITIONED_HEADS,
-        gpi_targets: int = 0,
         gpi_priorities: int = 0,
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
-        for name, count in (("gpi_targets", gpi_targets), ("gpi_priorities", gpi_priorities)):
-            if isinstance(count, bool) or not isinstance(count, int) or count < 0:
-                raise ValueError(f"{name} must be a non-negative integer, got {count!r}")
-        self.gpi_targets, self.gpi_priorities = gpi_targets, gpi_priorities
+        if isinstance(gpi_priorities, bool) or not isinstance(gpi_priorities, int) or gpi_priorities < 0:
+            raise ValueError(f"gpi_priorities must be a non-negative integer, got {gpi_priorities!r}")
+        self.gpi_priorities = gpi_priorities
         # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them (unless
         # told otherwise, or to fuse them)
         optimizer_kwargs = dict(optimizer_kwargs or {})
@@ -283,12 +278,9 @@ class ConditionedPolicy(SFDQNPolicy):
         masks = None if batch.next_action_masks is None else repeated(batch.next_action_masks)
         rows = th.arange(len(weights), device=weights.device)
         with th.no_grad():
-            if self.gpi_targets and len(self.support) > 1:
-                next_psi = self._gpi_bootstrap(next_observations, weights, masks, self.gpi_targets)
-            else:
-                next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
-                target_heads = self.sf_net_target.heads(next_observations, weights)[:, rows, next_actions]
-                next_psi = target_heads[weighted_sum(target_heads, weights).argmin(dim=0), rows]
+            next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
+            target_heads = self.sf_net_target.heads(next_observations, weights)[:, rows, next_actions]
+            next_psi = target_heads[weighted_sum(target_heads, weights).argmin(dim=0), rows]
             target_psi = repeated(batch.rewards) + (1 - repeated(batch.dones)) * gamma * next_psi
         current_heads = self.sf_net.heads(observations, weights)[:, rows, repeated(batch.actions).long().flatten()]
         return current_heads, target_psi
@@ -339,5 +331,5 @@ class ConditionedPolicy(SFDQNPolicy):
         return psi[chosen, best % n_actions]
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        counts = {"n_heads": self.n_heads, "gpi_targets": self.gpi_targets, "gpi_priorities": self.gpi_priorities}
+        counts = {"n_heads": self.n_heads, "gpi_priorities": self.gpi_priorities}
         return {**super()._get_constructor_parameters(), **counts}
