@@ -149,7 +149,7 @@ def _gpi_bootstrap_by_brute_force(policy, next_observation: th.Tensor, w: th.Ten
 def test_gpis_target_bootstraps_from_the_best_weight_and_action_of_the_lowest_heads_by_brute_force():
     model = SFDQN(
         "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), weights=SUPPORT[0], gamma=GAMMA, batch_size=8,
-        learning_starts=0, policy_kwargs=dict(net_arch=[16, 16], n_heads=3), seed=0,
+        learning_starts=0, policy_kwargs=dict(net_arch=[16, 16], n_heads=3, gpi_priorities=2), seed=0,
     )  # fmt: skip
     support = np.array([[0.8, 0.2], [0.3, 0.7], [0.5, 0.5], [0.1, 0.9]])
     model.set_weight_support(support)
@@ -158,7 +158,7 @@ def test_gpis_target_bootstraps_from_the_best_weight_and_action_of_the_lowest_he
     rows_w = th.as_tensor(np.random.default_rng(3).dirichlet(np.ones(2), 8), dtype=th.float32, device=policy.device)
     th.manual_seed(7)
     with th.no_grad():
-        target = policy._gpi_bootstrap(batch.next_observations, rows_w, None, 2)
+        target = policy._gpi_bootstrap(batch.next_observations, rows_w, None)
     th.manual_seed(7)
     drawn = policy.support[th.randperm(len(policy.support), device=policy.support.device)[:2]]
     assert len(drawn) == 2

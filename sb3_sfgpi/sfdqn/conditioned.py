@@ -239,12 +239,8 @@ class ConditionedPolicy(SFDQNPolicy):
             weights = th.cat([weights, self.support[drawn].to(weights.device)])
         current_heads, target_psi = self._heads_and_target(batch, weights, gamma)
         own = slice(0, batch_size)  # the rows learned for the policy's weights: their errors are the priorities
-        self.give_back_errors(
-            replay_buffer,
-            batch,
-            current_heads[:, own].detach(),
-            self._priority_target(batch, weights[own], gamma, target_psi[own]),
-        )
+        measured = self._priority_target(batch, weights[own], gamma, target_psi[own])
+        self.give_back_errors(replay_buffer, batch, current_heads[:, own].detach(), measured)
         loss = F.smooth_l1_loss(current_heads, target_psi.expand_as(current_heads), reduction="none")
         return self.gradient_step(loss.mean(dim=(1, 2)).sum(), max_grad_norm)
 
@@ -297,23 +293,20 @@ class ConditionedPolicy(SFDQNPolicy):
         """
         if not (self.gpi_priorities and len(self.support) > 1):
             return target_psi
-        next_psi = self._gpi_bootstrap(batch.next_observations, weights, batch.next_action_masks, self.gpi_priorities)  # type: ignore[arg-type]
+        next_psi = self._gpi_bootstrap(batch.next_observations, weights, batch.next_action_masks)  # type: ignore[arg-type]
         return batch.rewards + (1 - batch.dones) * gamma * next_psi
 
-    def _gpi_bootstrap(
-        self, next_observations: th.Tensor, weights: th.Tensor, masks: th.Tensor | None, k: int
-    ) -> th.Tensor:
+    def _gpi_bootstrap(self, next_observations: th.Tensor, weights: th.Tensor, masks: th.Tensor | None) -> th.Tensor:
         """
-        GPI's ``ψ_target(s', a*, w*)`` for each row's weights ``w`` over ``w`` and ``k`` support weights drawn
-        uniformly without replacement (see the class), shape ``(rows, d)``.
+        GPI's ``ψ_target(s', a*, w*)`` for each row's weights ``w`` over ``w`` and ``gpi_priorities`` support weights
+        drawn uniformly without replacement (see the class), shape ``(rows, d)``.
 
         :param next_observations: ``s'`` of each row, shape ``(rows, ...)``
         :param weights: each row's ``w``, shape ``(rows, d)``
         :param masks: True for the actions each ``s'`` has, shape ``(rows, n_actions)``, or None
-        :param k: how many support weights to draw
         """
         n_rows, support = len(weights), self.support.to(weights.device)
-        drawn = support[th.randperm(len(support), device=support.device)[:k]]
+        drawn = support[th.randperm(len(support), device=support.device)[: self.gpi_priorities]]
         policies = th.cat([weights, drawn.repeat_interleave(n_rows, dim=0)])  # each row's own, then each drawn one
         copies = len(drawn) + 1
         heads = self.sf_net_target.heads(
