@@ -149,7 +149,8 @@ def _gpi_bootstrap_by_brute_force(policy, next_observation: th.Tensor, w: th.Ten
 def test_gpis_target_bootstraps_from_the_best_weight_and_action_of_the_lowest_heads_by_brute_force():
     model = SFDQN(
         "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), weights=SUPPORT[0], gamma=GAMMA, batch_size=8,
-        learning_starts=0, policy_kwargs=dict(net_arch=[16, 16], n_heads=3, gpi_priorities=2), seed=0,
+        learning_starts=0, replay_buffer_class=PrioritizedMOReplayBuffer,
+        policy_kwargs=dict(net_arch=[16, 16], n_heads=3, gpi_priorities=2), seed=0,
     )  # fmt: skip
     support = np.array([[0.8, 0.2], [0.3, 0.7], [0.5, 0.5], [0.1, 0.9]])
     model.set_weight_support(support)
@@ -167,6 +168,8 @@ def test_gpis_target_bootstraps_from_the_best_weight_and_action_of_the_lowest_he
         th.testing.assert_close(target[i], expected, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="gpi_priorities must be a non-negative integer"):
         SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(gpi_priorities=-1))
+    with pytest.raises(ValueError, match="gpi_priorities sets prioritised replay's priorities: it needs"):
+        SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(gpi_priorities=4))
 
 
 def _gpi_priorities(model: SFDQN, rows: np.ndarray) -> np.ndarray:
