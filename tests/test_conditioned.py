@@ -146,15 +146,20 @@ def _gpi_bootstrap_by_brute_force(policy, next_observation: th.Tensor, w: th.Ten
     return expected
 
 
-def test_gpis_target_bootstraps_from_the_best_weight_and_action_of_the_lowest_heads_by_brute_force():
+def _gpi_prioritised(gpi_priorities: int, support: list[list[float]], steps: int) -> SFDQN:
+    """A small three-head conditioned learner on prioritised replay with GPI's priorities, trained ``steps`` steps."""
     model = SFDQN(
         "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), weights=SUPPORT[0], gamma=GAMMA, batch_size=8,
         learning_starts=0, replay_buffer_class=PrioritizedMOReplayBuffer,
-        policy_kwargs=dict(net_arch=[16, 16], n_heads=3, gpi_priorities=2), seed=0,
+        policy_kwargs=dict(net_arch=[16, 16], n_heads=3, gpi_priorities=gpi_priorities), seed=0,
     )  # fmt: skip
-    support = np.array([[0.8, 0.2], [0.3, 0.7], [0.5, 0.5], [0.1, 0.9]])
     model.set_weight_support(support)
-    model.learn(20)
+    model.learn(steps)
+    return model
+
+
+def test_gpis_target_bootstraps_from_the_best_weight_and_action_of_the_lowest_heads_by_brute_force():
+    model = _gpi_prioritised(2, [[0.8, 0.2], [0.3, 0.7], [0.5, 0.5], [0.1, 0.9]], 20)
     policy, batch = model.policy, model.replay_buffer.sample(8)
     rows_w = th.as_tensor(np.random.default_rng(3).dirichlet(np.ones(2), 8), dtype=th.float32, device=policy.device)
     th.manual_seed(7)
@@ -187,13 +192,7 @@ def _gpi_priorities(model: SFDQN, rows: np.ndarray) -> np.ndarray:
 
 
 def test_gpi_priorities_measure_errors_against_gpis_target_and_leave_the_loss_as_it_was():
-    model = SFDQN(
-        "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), weights=SUPPORT[0], gamma=GAMMA, batch_size=8,
-        learning_starts=0, replay_buffer_class=PrioritizedMOReplayBuffer,
-        policy_kwargs=dict(net_arch=[16, 16], n_heads=3, gpi_priorities=4), seed=0,
-    )  # fmt: skip
-    model.set_weight_support([[0.8, 0.2], [0.3, 0.7], [0.5, 0.5]])  # 4 or fewer: GPI is over the whole support
-    model.learn(30)
+    model = _gpi_prioritised(4, [[0.8, 0.2], [0.3, 0.7], [0.5, 0.5]], 30)  # 4 or more: GPI over the whole support
     policy, buffer = model.policy, model.replay_buffer
     plain, plain_buffer = copy.deepcopy(policy), copy.deepcopy(buffer)
     plain.gpi_priorities = 0
