@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -12,7 +13,8 @@ from parallel_chain import CHAIN_LEARNER, FailingChain, ParallelChainEnv, optima
 
 from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli import main
-from sb3_sfgpi.common.env_copies import EnvCopies
+from sb3_sfgpi.cli.gym_domains import make_gym_env
+from sb3_sfgpi.common.env_copies import EnvCopies, SideBySide, build_copy
 from sb3_sfgpi.learners import default_learner_factory
 from sb3_sfgpi.multiagent import MultiAgentRunner
 
@@ -96,3 +98,32 @@ def test_cli_trains_on_copies_and_refuses_to_change_their_number_on_resume(tmp_p
     assert main([*train, "--set", "n_envs=1", "--out", str(out), "--resume"]) == 2
     assert main([*train, "--out", str(out), "--resume"]) == 0
     assert main([*train, "--set", "n_envs=0", "--out", str(tmp_path / "bad")]) == 2
+
+
+class WarningChain(ParallelChainEnv):
+    """The chain, whose constructor warns (as MO-Gymnasium's minecart does of its spaces' bounds)."""
+
+    def __init__(self, **kwargs):
+        warnings.warn("a constructor's warning", UserWarning, stacklevel=2)
+        super().__init__(**kwargs)
+
+
+def test_copies_are_built_without_their_constructors_warnings_which_the_original_gave():
+    with pytest.warns(UserWarning, match="a constructor's warning"):
+        env = WarningChain(n_agents=2)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        envs = SideBySide(env, WarningChain, {"n_agents": 2}).envs(4)
+        copy = build_copy(WarningChain, {"n_agents": 2})
+    assert not caught
+    assert len(envs) == 4 and envs[-1] is env and copy.possible_agents == env.possible_agents
+
+
+def test_gym_ids_step_vector_rewards_without_gymnasiums_scalar_reward_warning():
+    env = make_gym_env("deep-sea-treasure-v0")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env.reset(seed=0)
+        _, rewards, *_ = env.step({agent: 0 for agent in env.agents})
+    assert not caught
+    assert all(np.shape(reward) == (2,) for reward in rewards.values())

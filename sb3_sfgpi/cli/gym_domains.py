@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -83,7 +84,8 @@ MLP_RUN = {"validation_weights": 50, "prune": True, "episode_weights": "support"
 def make_gym_env(env_id: str, **env_kwargs: Any) -> SingleAgentParallelEnv:
     """The Gymnasium env ``env_id`` as a ParallelEnv of one agent (picklable with ``functools.partial``)."""
     _register_ids()
-    return SingleAgentParallelEnv(with_seeded_draws(gym.make(env_id, **env_kwargs)))
+    # Gymnasium's env checker wants scalar rewards (MO-Gymnasium's own ``make`` turns it off too).
+    return SingleAgentParallelEnv(with_seeded_draws(gym.make(env_id, **{"disable_env_checker": True, **env_kwargs})))
 
 
 def gym_preset(env_id: str) -> dict[str, Any] | None:
@@ -121,12 +123,15 @@ def gym_preset(env_id: str) -> dict[str, Any] | None:
 
 def _made(env_id: str) -> gym.Env:
     """
-    ``gym.make(env_id)``.
+    ``gym.make(env_id)`` to read its spaces, without the warnings of its construction (the env the run trains on
+    gives them).
 
     :raises UsageError: the env needs a package that is not installed (named, with the command that installs it)
     """
     try:
-        return gym.make(env_id)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return gym.make(env_id, disable_env_checker=True)
     except ImportError as error:
         missing = error.name or str(error)
         raise UsageError(

@@ -11,6 +11,7 @@ early need ``black_death``, which feeds zero observations and rewards to the lea
 from __future__ import annotations
 
 import multiprocessing as mp
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -25,9 +26,20 @@ StepResult = tuple[dict, dict, dict, dict, dict, list[str]]
 ResetResult = tuple[dict, dict, list[str]]
 
 
+def build_copy(env_fn: Callable[..., Any], env_kwargs: Mapping[str, Any]) -> Any:
+    """
+    A copy of an env, as a ParallelEnv, built without the warnings its constructor gives: building the env it copies
+    gave them already (MO-Gymnasium's minecart warns of its spaces' bounds each time, twice, and a run builds about 50
+    copies an iteration for its evaluations).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return as_parallel_env(env_fn(**env_kwargs))
+
+
 def _serve(pipe: Any, env_fn: Callable[..., Any], env_kwargs: Mapping[str, Any]) -> None:
     """The loop of a copy's process: build the env, then answer reset/step/close."""
-    env = as_parallel_env(env_fn(**env_kwargs))
+    env = build_copy(env_fn, env_kwargs)
     try:
         while True:
             command, data = pipe.recv()
@@ -157,7 +169,7 @@ class SideBySide:
         if self._env_fn is None:
             return None
         while len(self.copies) < n - 1:
-            self.copies.append(as_parallel_env(self._env_fn(**self._env_kwargs)))
+            self.copies.append(build_copy(self._env_fn, self._env_kwargs))
         return [*self.copies[: n - 1], self.env] if n else []
 
     def close(self) -> None:
