@@ -10,6 +10,7 @@
     python -m benchmarks known-fronts --seeds 0 1 2 --envs deep-sea-treasure resource-gathering fruit-tree
     python -m benchmarks deep-fronts --seeds 0 1 2        # minecart(-deterministic), lunar lander: 15 × 10,000 steps
     python -m benchmarks momaland --seeds 0 1 2           # item gathering against MOMAland's GPI-LS (15 × 10,000)
+    python -m benchmarks deep-fronts --runs runs/bench    # our runs in runs/bench; run it again to resume them
 
 Every row compares a candidate with a baseline measured in the same process, interleaved, with medians over
 repeats; the ratio is candidate speed / baseline speed (or baseline bytes / candidate bytes for memory),
@@ -115,12 +116,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--envs", nargs="+", help="envs of the benchmarks that take some (known-fronts)")
     parser.add_argument("--peer-steps", type=int, help="env steps of the morl-baselines peers (default: ours)")
     parser.add_argument("--peer-updates", type=int, help="gradient updates per step of momaland's peer (default: 10)")
+    parser.add_argument(
+        "--runs", type=Path, help="known-fronts, deep-fronts, momaland: our runs' directories go here, one per problem "
+        "and seed, and a run found there goes on from its last checkpoint (an interrupted benchmark resumes)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     given = (
         ("seeds", args.seeds),
         ("envs", args.envs),
         ("peer_steps", args.peer_steps),
         ("peer_updates", args.peer_updates),
+        ("runs", args.runs),
     )
     options = {key: value for key, value in given if value is not None}
     single_thread_torch()

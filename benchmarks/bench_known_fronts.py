@@ -29,11 +29,13 @@ from __future__ import annotations
 
 import functools
 import importlib
+import json
 import random
 import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import mo_gymnasium as mo
@@ -58,6 +60,8 @@ from sb3_sfgpi.common.seeded_draws import with_seeded_draws
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
 from sb3_sfgpi.evaluation import summarize_test_episodes
+from sb3_sfgpi.run_directory import RunDirectory
+from sb3_sfgpi.run_settings import RunSettings
 
 NAME = "known fronts"
 N_TEST_WEIGHTS = 50
@@ -122,6 +126,7 @@ def run(
     seeds: Sequence[int] | None = None,
     envs: Sequence[str] | None = None,
     peer_steps: int | None = None,
+    runs: Path | None = None,
 ) -> list[Row]:
     """
     EU/EU* of SFOLS + GPI (and of morl-baselines where installed) on the known-front problems.
@@ -130,12 +135,14 @@ def run(
     :param seeds: the seeds (default 0, 1, 2)
     :param envs: problem names or Gymnasium ids (default: all but minecart)
     :param peer_steps: the morl-baselines peers' env steps (default: ours)
+    :param runs: where our runs keep their run directories, ``<problem>-s<seed>``, and go on from them (None: no
+        files; see :func:`learned`)
     """
     names = [_problem_name(env) for env in envs or DEFAULT]
     seeds = list(SEEDS if seeds is None else seeds)
     rows: list[Row] = []
     for name in names:
-        rows.extend(_problem_rows(PROBLEMS[name], seeds, quick))
+        rows.extend(_problem_rows(name, seeds, quick, runs))
     rows.extend(_morl_rows([PROBLEMS[name] for name in names], seeds, quick, peer_steps))
     return rows
 
@@ -145,10 +152,11 @@ def run_deep(
     seeds: Sequence[int] | None = None,
     envs: Sequence[str] | None = None,
     peer_steps: int | None = None,
+    runs: Path | None = None,
 ) -> list[Row]:
     """Minecart, minecart-deterministic (MLP learners, approximate fronts) and lunar lander (no known front); slow:
-    ``python -m benchmarks deep-fronts``."""
-    return run(quick, seeds, envs or list(DEEP), peer_steps)
+    ``python -m benchmarks deep-fronts`` (``--runs DIR``: resumable)."""
+    return run(quick, seeds, envs or list(DEEP), peer_steps, runs)
 
 
 def _problem_name(env: str) -> str:
@@ -185,8 +193,9 @@ def _best(problem: Problem, env: Any, model: Any, weights: np.ndarray, gamma: fl
 
 
 # --- SFOLS + GPI ------------------------------------------------------------------------------------------------------
-def _problem_rows(problem: Problem, seeds: list[int], quick: bool) -> list[Row]:
-    """The summary row of one problem and a row per seed."""
+def _problem_rows(name: str, seeds: list[int], quick: bool, runs: Path | None = None) -> list[Row]:
+    """The summary row of the problem ``name`` and a row per seed."""
+    problem = PROBLEMS[name]
     env = _make_env(problem)
     policy, learner = _learner_of(problem)
     gamma = learner["gamma"]
@@ -194,7 +203,7 @@ def _problem_rows(problem: Problem, seeds: list[int], quick: bool) -> list[Row]:
     weights = random_weights(d, N_TEST_WEIGHTS, rng=0)
     model = _model(problem, env, gamma)
     best = _best(problem, env, model, weights, gamma)
-    outcomes = [_train_sfols(problem, policy, learner, weights, model, seed, quick) for seed in seeds]
+    outcomes = [_train_sfols(name, policy, learner, weights, model, seed, quick, runs) for seed in seeds]
     steps, iterations = problem.budget(quick)
     case = f"{problem.env_id} (d={d}), SFOLS + GPI, {iterations} × {steps:,} steps"
     reference = "exact (value iteration)" if model is not None else "MO-Gymnasium's approximate CCS"
@@ -208,28 +217,34 @@ def _problem_rows(problem: Problem, seeds: list[int], quick: bool) -> list[Row]:
 
 
 def _train_sfols(
-    problem: Problem, policy: str, learner: dict[str, Any], weights: np.ndarray, model: Any, seed: int, quick: bool
-) -> Outcome:
-    """One MASFOLS run with the preset's evaluation and admission, and GPI's EU over its final Π."""
+    name: str, policy: str, learner: dict[str, Any], weights: np.ndarray, model: Any, seed: int, quick: bool,
+    runs: Path | None,
+) -> Outcome:  # fmt: skip
+    """One MASFOLS run on the problem ``name`` with the preset's evaluation and admission (in ``runs/<name>-s<seed>``
+    where given), and GPI's EU over its final Π."""
+    problem = PROBLEMS[name]
     steps, iterations = problem.budget(quick)
     preset = gym_preset(problem.env_id)
     assert preset is not None, f"{problem.env_id} is not a registered Gymnasium id"
-    masfols = MASFOLS(
-        _make_env(problem), policy=policy, steps_per_iteration=steps, learner_kwargs=learner,
-        value_episodes=preset["value_episodes"],
-        **(TABULAR_RUN if problem.tabular else MLP_RUN),
-        pool_replay=problem.tabular and TABULAR_POOL_REPLAY,
-        test_weights=weights, eval_episodes=problem.eval_episodes, seed=seed,
-        verbose=0 if problem.tabular else 1,  # a line per iteration of the hour-long deep runs
-    )  # fmt: skip
-    wall_time = timed_learn(masfols, iterations)
+    verbose = 0 if problem.tabular else 1  # a line per iteration of the hour-long deep runs
+
+    def build(run_dir: Path | None) -> MASFOLS:
+        return MASFOLS(
+            _make_env(problem), policy=policy, steps_per_iteration=steps, learner_kwargs=learner,
+            value_episodes=preset["value_episodes"],
+            **(TABULAR_RUN if problem.tabular else MLP_RUN),
+            pool_replay=problem.tabular and TABULAR_POOL_REPLAY,
+            test_weights=weights, eval_episodes=problem.eval_episodes, seed=seed, run_dir=run_dir, verbose=verbose,
+        )  # fmt: skip
+
+    masfols = learned(build, lambda: _make_env(problem), runs, f"{name}-s{seed}", iterations, verbose)
     last = masfols.history[-1]
     policy_set = masfols.policy_set
     exact = None if model is None else model.expected_utility(lambda o, w: policy_set.predict(o, w)[0], weights)
     return Outcome(
         expected_utility=last["mean_return"] if exact is None else exact,
         monte_carlo=last["mean_return"],
-        wall_time=wall_time,
+        wall_time=last["wall_time"],
         env_steps=int(last["timesteps"]),
         n_policies=len(policy_set),
         iterations=len(masfols.history),
@@ -237,14 +252,39 @@ def _train_sfols(
     )
 
 
-def timed_learn(masfols: MASFOLS, iterations: int) -> float:
-    """Train ``masfols`` for ``iterations`` iterations (its logs closed after): the wall time, in seconds."""
-    start = time.perf_counter()
+def learned(
+    build: Callable[[Path | None], MASFOLS], make_env: Callable[[], Any], runs: Path | None, name: str,
+    iterations: int, verbose: int,
+) -> MASFOLS:  # fmt: skip
+    """
+    A run of ours trained for ``iterations`` iterations in all, its logs closed. With ``runs`` it keeps its run
+    directory there, ``runs/name`` (a checkpoint after every iteration): a run found there goes on from its last
+    checkpoint, or is only read once finished, so that a benchmark of hours survives an interruption. Its
+    ``history[-1]["wall_time"]`` is that of all its sessions.
+
+    :param build: a new run of the benchmark's settings, in the given run directory (None: none)
+    :param make_env: the run's env, as ``build`` makes it
+    :param verbose: a continued run's verbosity
+    :raises ValueError: ``runs/name`` holds a run of other settings
+    """
+    path = None if runs is None else Path(runs) / name
+    masfols = build(path)
+    if path is not None and RunDirectory(path).has_checkpoint():
+        stored = RunSettings.stored(RunDirectory(path).read_config(), str(path / RunDirectory.RUN))
+        masfols.close()
+        if _as_json(stored.to_json()) != _as_json(masfols.settings.to_json()):
+            raise ValueError(f"{path} holds a run of other settings than this benchmark's: move it away")
+        masfols = MASFOLS.load(path, make_env(), verbose=verbose)
     try:
         masfols.learn(max_iterations=iterations)
     finally:
         masfols.close()
-    return time.perf_counter() - start
+    return masfols
+
+
+def _as_json(settings: dict[str, Any]) -> Any:
+    """Settings as ``run.json`` reads them back (arrays as lists)."""
+    return json.loads(json.dumps(settings, default=lambda value: np.asarray(value).tolist()))
 
 
 def _front_expected_utility(env: Any, weights: np.ndarray, gamma: float) -> float | None:

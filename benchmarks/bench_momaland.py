@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -35,12 +36,12 @@ from benchmarks.bench_known_fronts import (
     SEEDS,
     Outcome,
     drop_sampled_indices,
+    learned,
     peer_device,
     seed_peer_generators,
     seed_row,
     seeded,
     summary_row,
-    timed_learn,
 )
 from sb3_sfgpi import MASFOLS, SwapTerminationsTruncations
 from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, MLP_RUN
@@ -83,13 +84,20 @@ def make_env() -> Any:
     return SwapTerminationsTruncations(moitem_gathering_v0.parallel_env(num_timesteps=50, randomise=False))
 
 
-def run(quick: bool = False, seeds: Sequence[int] | None = None, peer_updates: int | None = None) -> list[Row]:
+def run(
+    quick: bool = False,
+    seeds: Sequence[int] | None = None,
+    peer_updates: int | None = None,
+    runs: Path | None = None,
+) -> list[Row]:
     """
     EU of MA-SFOLS + GPI and of MOMAland's GPI-LS on item gathering, at the same env steps.
 
     :param quick: the smoke run's tiny budget
     :param seeds: the seeds (default 0, 1, 2)
     :param peer_updates: the peer's gradient updates per env step (default: its script's 10)
+    :param runs: where our runs keep their run directories, ``item-gathering-s<seed>``, and go on from them (None: no
+        files; see :func:`~benchmarks.bench_known_fronts.learned`)
     """
     try:
         import momaland  # noqa: F401 - the env's package: pip install momaland
@@ -99,26 +107,29 @@ def run(quick: bool = False, seeds: Sequence[int] | None = None, peer_updates: i
     steps, iterations = QUICK if quick else (STEPS, ITERATIONS)
     weights = random_weights(len(ITEMS), N_TEST_WEIGHTS, rng=0)
     ceiling = f"every item: {float(np.mean(weights @ ITEMS)):.4f} undiscounted"
-    ours = [_train_ours(weights, seed, steps, iterations) for seed in seeds]
+    ours = [_train_ours(weights, seed, steps, iterations, runs) for seed in seeds]
     case = f"{ENV_ID} (2 agents, d=3), MA-SFOLS + GPI, {iterations} × {steps:,} joint steps"
     rows = [summary_row(NAME, case, ours, None, ceiling, seeds)]
     rows += [seed_row(NAME, f"{ENV_ID} seed {seed}", o, None) for seed, o in zip(seeds, ours, strict=True)]
     return rows + _peer_rows(weights, seeds, steps, iterations, peer_updates, ceiling)
 
 
-def _train_ours(weights: np.ndarray, seed: int, steps: int, iterations: int) -> Outcome:
-    """One MA-SFOLS run with the deep preset at γ 0.99; its team's EU over the final Π."""
+def _train_ours(weights: np.ndarray, seed: int, steps: int, iterations: int, runs: Path | None) -> Outcome:
+    """One MA-SFOLS run with the deep preset at γ 0.99 (in ``runs`` where given); its team's EU over the final Π."""
     learner = {key: value for key, value in MLP_LEARNER.items() if key != "policy"} | {"gamma": GAMMA}
-    masfols = MASFOLS(
-        make_env(), policy=MLP_LEARNER["policy"], steps_per_iteration=steps, learner_kwargs=learner, value_episodes=5,
-        **MLP_RUN, test_weights=weights, eval_episodes=1, seed=seed, verbose=1,
-    )  # fmt: skip
-    wall_time = timed_learn(masfols, iterations)
+
+    def build(run_dir: Path | None) -> MASFOLS:
+        return MASFOLS(
+            make_env(), policy=MLP_LEARNER["policy"], steps_per_iteration=steps, learner_kwargs=learner,
+            value_episodes=5, **MLP_RUN, test_weights=weights, eval_episodes=1, seed=seed, run_dir=run_dir, verbose=1,
+        )  # fmt: skip
+
+    masfols = learned(build, make_env, runs, f"item-gathering-s{seed}", iterations, verbose=1)
     by_iteration = tuple(_team_expected_utility(entry["test"]) for entry in masfols.history)
     last = masfols.history[-1]
     return Outcome(
-        by_iteration[-1], None, wall_time, int(last["timesteps"]), len(masfols.policy_set), len(masfols.history),
-        by_iteration,
+        by_iteration[-1], None, last["wall_time"], int(last["timesteps"]), len(masfols.policy_set),
+        len(masfols.history), by_iteration,
     )  # fmt: skip
 
 

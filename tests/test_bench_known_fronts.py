@@ -4,6 +4,7 @@ and the Monte-Carlo EU by which a peer without a model (minecart's GPI-LS) is sc
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -119,3 +120,28 @@ def test_a_tabular_peer_is_scored_exactly_and_repeats_with_its_seed(monkeypatch)
     ]
     assert "3,000 env steps" in first[1].note
     assert first[1].baseline == again[1].baseline and first[1].baseline.startswith("EU ")
+
+
+def test_our_runs_resume_from_their_run_directories_exactly_and_refuse_other_settings(monkeypatch, tmp_path):
+    """``--runs``: a run cut after its first iteration and run again goes on to the same end as one run straight
+    through; a finished one is only read; a directory of other settings is refused."""
+    monkeypatch.setattr(bench, "N_TEST_WEIGHTS", 5)
+    problem = bench.PROBLEMS["deep-sea-treasure"]
+    policy, learner = bench._learner_of(problem)
+    weights = random_weights(2, 5, rng=0)
+
+    def train(budget: tuple[int, int], runs: Path, test_weights: np.ndarray = weights) -> bench.Outcome:
+        monkeypatch.setitem(bench.PROBLEMS, "deep-sea-treasure", replace(problem, quick=budget))
+        return bench._train_sfols("deep-sea-treasure", policy, learner, test_weights, None, 0, True, runs)
+
+    straight = train((1_500, 2), tmp_path / "straight")
+    assert train((1_500, 1), tmp_path / "cut").iterations == 1
+    cut = train((1_500, 2), tmp_path / "cut")
+    again = train((1_500, 2), tmp_path / "cut")
+    for outcome in (cut, again):
+        assert (outcome.by_iteration, outcome.env_steps, outcome.n_policies) == (
+            straight.by_iteration, straight.env_steps, straight.n_policies,
+        )  # fmt: skip
+    assert again.wall_time == cut.wall_time  # read, not trained again
+    with pytest.raises(ValueError, match="holds a run of other settings"):
+        train((1_500, 2), tmp_path / "cut", random_weights(2, 5, rng=1))
