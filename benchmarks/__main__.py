@@ -5,7 +5,7 @@
     python -m benchmarks gpi ols         # some: gpi training planning ols traffic memory optimum sharing
                                          # copies ray-eval startup admission tabular tabular-peer sweep
                                          # sweep-fig4, and sweep-fig4-preset,
-                                         # known-fronts, deep-fronts, momaland (only when named)
+                                         # known-fronts, deep-fronts, momaland, deep-peer (only when named)
     python -m benchmarks --output results.md
     python -m benchmarks known-fronts --seeds 0 1 2 --envs deep-sea-treasure resource-gathering fruit-tree
     python -m benchmarks deep-fronts --seeds 0 1 2        # minecart(-deterministic), lunar lander: 15 × 10,000 steps
@@ -51,6 +51,7 @@ BENCHMARKS = {
     "admission": "benchmarks.bench_admission",
     "tabular": "benchmarks.bench_tabular",
     "tabular-peer": "benchmarks.bench_tabular_peer",
+    "deep-peer": "benchmarks.bench_deep_peer",
     "sweep-fig4": "benchmarks.bench_sweep:run_fig4",
     "sweep-fig4-preset": "benchmarks.bench_sweep:run_fig4_preset",
     "known-fronts": "benchmarks.bench_known_fronts",
@@ -58,7 +59,7 @@ BENCHMARKS = {
     "momaland": "benchmarks.bench_momaland",
 }
 #: Run only when named (each takes many minutes on 2 cores), not in the default "everything".
-ON_REQUEST = ("sweep-fig4-preset", "known-fronts", "deep-fronts", "momaland")
+ON_REQUEST = ("sweep-fig4-preset", "known-fronts", "deep-fronts", "momaland", "deep-peer")
 
 
 def _gpu() -> str:
