@@ -21,21 +21,18 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
 
-import mo_gymnasium as mo
 import numpy as np
 
 from benchmarks._common import MORL_MISSING, Row, fmt_rate, paired_ratio
-from benchmarks.bench_known_fronts import GPI_LS_SETTINGS, drop_sampled_indices
+from benchmarks.bench_known_fronts import GPI_LS_SETTINGS, PROBLEMS, _learner_of, _make_env, drop_sampled_indices
 from benchmarks.bench_training import _silent, chunked_interleaved
 from sb3_sfgpi import SFDQN
 from sb3_sfgpi.cli.gym_domains import MLP_LEARNER
-from sb3_sfgpi.common.seeded_draws import with_seeded_draws
 from sb3_sfgpi.common.weights import random_weights
 
 NAME = "deep peer"
-ENV_ID = "minecart-v0"
+MINECART = PROBLEMS["minecart"]
 WEIGHTS = np.array([0.5, 0.3, 0.2])
 #: The support both act over by GPI and draw their episodes' weights from: the weight and 5 Dirichlet(1) draws.
 SUPPORT = np.vstack([WEIGHTS, random_weights(3, 5, rng=0)])
@@ -49,7 +46,7 @@ Advance = Callable[[int], None]
 def run(quick: bool = False) -> list[Row]:
     """One row: our deep learner's env steps per CPU-second against GPI-LS's, both at 3 updates per step."""
     updates = MLP_LEARNER["gradient_steps"]
-    case = f"{updates} gradient updates per step: the deep preset's learner vs morl-baselines GPI-LS; {ENV_ID}"
+    case = f"{updates} gradient updates per step: the deep preset's learner vs morl-baselines GPI-LS; {MINECART.env_id}"
     try:
         from morl_baselines.multi_policy.gpi_pd.gpi_pd import GPIPD
     except ImportError:
@@ -69,14 +66,10 @@ def run(quick: bool = False) -> list[Row]:
     ]  # fmt: skip
 
 
-def _env() -> Any:
-    return with_seeded_draws(mo.make(ENV_ID))
-
-
 def _ours() -> Advance:
     """The deep preset's learner for :data:`WEIGHTS` over :data:`SUPPORT`, trained :data:`WARMUP` steps."""
-    kwargs = {key: value for key, value in MLP_LEARNER.items() if key != "policy"}
-    model = _silent(SFDQN(MLP_LEARNER["policy"], _env(), weights=WEIGHTS, seed=0, **kwargs))
+    policy, kwargs = _learner_of(MINECART)
+    model = _silent(SFDQN(policy, _make_env(MINECART), weights=WEIGHTS, seed=0, **kwargs))
     model.set_weight_support(SUPPORT)
     model.learn(WARMUP)
     return lambda n: model.learn(n, reset_num_timesteps=False)
@@ -86,7 +79,7 @@ def _gpi_ls(algorithm: type, updates: int) -> Advance:
     """GPI-LS at ``updates`` gradient updates per step for :data:`WEIGHTS` over :data:`SUPPORT`, trained
     :data:`WARMUP` steps; its weight redrawn from the support every episode, as in its own training."""
     agent = algorithm(
-        _env(), gamma=MLP_LEARNER["gamma"], gradient_updates=updates, seed=0, log=False, device="cpu",
+        _make_env(MINECART), gamma=MLP_LEARNER["gamma"], gradient_updates=updates, seed=0, log=False, device="cpu",
         **GPI_LS_SETTINGS,
     )  # fmt: skip
     drop_sampled_indices(agent)

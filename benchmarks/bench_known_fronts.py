@@ -237,7 +237,7 @@ def _train_sfols(
             test_weights=weights, eval_episodes=problem.eval_episodes, seed=seed, run_dir=run_dir, verbose=verbose,
         )  # fmt: skip
 
-    masfols = learned(build, lambda: _make_env(problem), runs, f"{name}-s{seed}", iterations, verbose)
+    masfols = learned(build, lambda: _make_env(problem), runs, f"{name}-s{seed}", iterations)
     last = masfols.history[-1]
     policy_set = masfols.policy_set
     exact = None if model is None else model.expected_utility(lambda o, w: policy_set.predict(o, w)[0], weights)
@@ -253,9 +253,8 @@ def _train_sfols(
 
 
 def learned(
-    build: Callable[[Path | None], MASFOLS], make_env: Callable[[], Any], runs: Path | None, name: str,
-    iterations: int, verbose: int,
-) -> MASFOLS:  # fmt: skip
+    build: Callable[[Path | None], MASFOLS], make_env: Callable[[], Any], runs: Path | None, name: str, iterations: int
+) -> MASFOLS:
     """
     A run of ours trained for ``iterations`` iterations in all, its logs closed. With ``runs`` it keeps its run
     directory there, ``runs/name`` (a checkpoint after every iteration): a run found there goes on from its last
@@ -263,8 +262,7 @@ def learned(
     ``history[-1]["wall_time"]`` is that of all its sessions.
 
     :param build: a new run of the benchmark's settings, in the given run directory (None: none)
-    :param make_env: the run's env, as ``build`` makes it
-    :param verbose: a continued run's verbosity
+    :param make_env: the run's env, as ``build`` makes it (a continued run is as verbose as ``build``'s)
     :raises ValueError: ``runs/name`` holds a run of other settings
     """
     path = None if runs is None else Path(runs) / name
@@ -274,7 +272,7 @@ def learned(
         masfols.close()
         if _as_json(stored.to_json()) != _as_json(masfols.settings.to_json()):
             raise ValueError(f"{path} holds a run of other settings than this benchmark's: move it away")
-        masfols = MASFOLS.load(path, make_env(), verbose=verbose)
+        masfols = MASFOLS.load(path, make_env(), verbose=masfols.callback.verbose)
     try:
         masfols.learn(max_iterations=iterations)
     finally:

@@ -124,7 +124,7 @@ def _train_ours(weights: np.ndarray, seed: int, steps: int, iterations: int, run
             value_episodes=5, **MLP_RUN, test_weights=weights, eval_episodes=1, seed=seed, run_dir=run_dir, verbose=1,
         )  # fmt: skip
 
-    masfols = learned(build, make_env, runs, f"item-gathering-s{seed}", iterations, verbose=1)
+    masfols = learned(build, make_env, runs, f"item-gathering-s{seed}", iterations)
     by_iteration = tuple(_team_expected_utility(entry["test"]) for entry in masfols.history)
     last = masfols.history[-1]
     return Outcome(
