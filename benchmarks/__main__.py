@@ -118,8 +118,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer-steps", type=int, help="env steps of the morl-baselines peers (default: ours)")
     parser.add_argument("--peer-updates", type=int, help="gradient updates per step of momaland's peer (default: 10)")
     parser.add_argument(
-        "--runs", type=Path, help="known-fronts, deep-fronts, momaland: our runs' directories go here, one per problem "
-        "and seed, and a run found there goes on from its last checkpoint (an interrupted benchmark resumes)",
+        "--runs", type=Path, help="known-fronts, deep-fronts, momaland: our runs' directories and GPI-LS's checkpoints "
+        "go here, one per problem and seed, and a run found there goes on from its last checkpoint (an interrupted "
+        "benchmark resumes)",
     )  # fmt: skip
     args = parser.parse_args(argv)
     given = (

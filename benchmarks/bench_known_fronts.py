@@ -45,6 +45,7 @@ from sfgpi_envs.resource_gathering_optimum import resource_gathering_mdp
 from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_tree_mdp
 
 from benchmarks._common import MORL_MISSING, Row
+from benchmarks.gpi_ls_runs import train_gpi_ls
 from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli.gym_domains import (
     MLP_LEARNER,
@@ -143,7 +144,7 @@ def run(
     rows: list[Row] = []
     for name in names:
         rows.extend(_problem_rows(name, seeds, quick, runs))
-    rows.extend(_morl_rows([PROBLEMS[name] for name in names], seeds, quick, peer_steps))
+    rows.extend(_morl_rows([PROBLEMS[name] for name in names], seeds, quick, peer_steps, runs))
     return rows
 
 
@@ -171,8 +172,9 @@ def _make_env(problem: Problem) -> Any:
 
 
 def _learner_of(problem: Problem) -> tuple[str, dict[str, Any]]:
-    """The SFDQN policy and learner arguments of the command line's preset for the problem's observations."""
-    kwargs = dict(TABULAR_LEARNER if problem.tabular else MLP_LEARNER)
+    """The SFDQN policy and learner arguments of the command line's preset for the problem's observations, with its
+    default device: a run of ``sb3-sfgpi train <env id>`` is one of the benchmark's (``--runs``)."""
+    kwargs = dict(TABULAR_LEARNER if problem.tabular else MLP_LEARNER) | {"device": "auto"}
     return kwargs.pop("policy"), kwargs
 
 
@@ -352,7 +354,8 @@ class Peer:
     :param module: the module of its class (imported only when the peer runs)
     :param name: its class's name
     :param label: how the rows name it
-    :param train: builds and trains it: ``(class, problem, learner preset, seed, steps per iteration, iterations)``
+    :param train: builds and trains it: ``(class, problem, learner preset, seed, steps per iteration, iterations,
+        checkpoint file or None)`` -> ``(agent, wall time of training)``
     :param policies: how many policies its GPI acts over, once trained
     :param steps_per_iteration: its own iteration length (None: ours); the smoke run always takes ours
     """
@@ -360,7 +363,7 @@ class Peer:
     module: str
     name: str
     label: str
-    train: Callable[[Any, Problem, dict[str, Any], int, int, int], Any]
+    train: Callable[[Any, Problem, dict[str, Any], int, int, int, Path | None], tuple[Any, float]]
     policies: Callable[[Any], int]
     steps_per_iteration: int | None = None
 
@@ -376,9 +379,11 @@ class Peer:
 
 
 def _train_mpmoq(
-    algorithm: Any, problem: Problem, learner: dict[str, Any], seed: int, steps: int, iterations: int
-) -> Any:
-    """MPMOQLearning (OLS weights, GPI, Dyna) with the preset's learning rate, γ and final ε."""
+    algorithm: Any, problem: Problem, learner: dict[str, Any], seed: int, steps: int, iterations: int,
+    checkpoint: Path | None,
+) -> tuple[Any, float]:  # fmt: skip
+    """MPMOQLearning (OLS weights, GPI, Dyna) with the preset's learning rate, γ and final ε; the agent and its wall
+    time of training. Its runs take seconds: each starts anew, ``checkpoint`` is not written."""
     agent = algorithm(
         _seeded_env(problem, seed), learning_rate=learner["learning_rate"], gamma=learner["gamma"],
         initial_epsilon=1.0, final_epsilon=learner["exploration_final_eps"],
@@ -386,11 +391,12 @@ def _train_mpmoq(
         weight_selection_algo="ols", epsilon_ols=0.0, use_gpi_policy=True, dyna=True, seed=seed, log=False,
     )  # fmt: skip
     d = agent.reward_dim
+    start = time.perf_counter()
     agent.train(
         total_timesteps=steps * iterations, eval_env=_seeded_env(problem, derive_seed(seed, "peer eval")),
         ref_point=np.full(d, -100.0), timesteps_per_iteration=steps,
     )  # fmt: skip
-    return agent
+    return agent, time.perf_counter() - start
 
 
 #: GPI-LS's settings: morl-baselines' ``GPIPD`` with the settings of its minecart example
@@ -419,20 +425,26 @@ GPI_LS_SETTINGS = {
 
 
 def _train_gpi_ls(
-    algorithm: Any, problem: Problem, learner: dict[str, Any], seed: int, steps: int, iterations: int
-) -> Any:
-    """GPI-LS at our gradient updates per step, no wandb and no checkpoint files."""
-    agent = algorithm(
-        _seeded_env(problem, seed), gamma=learner["gamma"], gradient_updates=learner.get("gradient_steps", 1),
-        seed=seed, log=False, device=peer_device(), **GPI_LS_SETTINGS,
-    )  # fmt: skip
-    drop_sampled_indices(agent)
-    agent.train(
-        total_timesteps=steps * iterations, eval_env=_seeded_env(problem, derive_seed(seed, "peer eval")),
-        ref_point=np.zeros(agent.reward_dim), timesteps_per_iter=steps, weight_selection_algo="gpi-ls",
-        checkpoints=False,  # ref_point serves only its logging, which is off
-    )  # fmt: skip
-    return agent
+    algorithm: Any, problem: Problem, learner: dict[str, Any], seed: int, steps: int, iterations: int,
+    checkpoint: Path | None,
+) -> tuple[Any, float]:  # fmt: skip
+    """GPI-LS at our gradient updates per step, no wandb, continued from ``checkpoint`` where a run is stored there
+    (:func:`~benchmarks.gpi_ls_runs.train_gpi_ls`); the agent and its wall time of training."""
+    updates = learner.get("gradient_steps", 1)
+
+    def agent() -> Any:
+        made = algorithm(
+            _seeded_env(problem, seed), gamma=learner["gamma"], gradient_updates=updates, seed=seed, log=False,
+            device=peer_device(), **GPI_LS_SETTINGS,
+        )  # fmt: skip
+        drop_sampled_indices(made)
+        return made
+
+    settings = {"env": problem.env_id, "seed": seed, "gamma": learner["gamma"], "gradient_updates": updates,
+                "steps_per_iteration": steps, **GPI_LS_SETTINGS}  # fmt: skip
+    eval_env = functools.partial(_seeded_env, problem, derive_seed(seed, "peer eval"))
+    run = train_gpi_ls(agent, eval_env, settings, steps, iterations, checkpoint)
+    return run.agent, run.wall_time
 
 
 def drop_sampled_indices(agent: Any) -> None:
@@ -478,13 +490,18 @@ def peer_device() -> str:
     return "auto" if th.cuda.is_available() else "cpu"
 
 
-def _morl_rows(problems: list[Problem], seeds: list[int], quick: bool, peer_steps: int | None = None) -> list[Row]:
-    """Per problem, its morl-baselines peer (:data:`PEERS`) at the same env steps (or ``peer_steps``)."""
+def _morl_rows(
+    problems: list[Problem], seeds: list[int], quick: bool, peer_steps: int | None = None, runs: Path | None = None
+) -> list[Row]:
+    """Per problem, its morl-baselines peer (:data:`PEERS`) at the same env steps (or ``peer_steps``); with ``runs``,
+    a resumable peer keeps its checkpoint there, ``<env id>-<peer>-s<seed>.pkl``."""
     peers = [(PEERS[problem.tabular], problem) for problem in problems]
-    return [row for peer, problem in peers for row in _peer_rows(peer, problem, seeds, quick, peer_steps)]
+    return [row for peer, problem in peers for row in _peer_rows(peer, problem, seeds, quick, peer_steps, runs)]
 
 
-def _peer_rows(peer: Peer, problem: Problem, seeds: list[int], quick: bool, peer_steps: int | None) -> list[Row]:
+def _peer_rows(
+    peer: Peer, problem: Problem, seeds: list[int], quick: bool, peer_steps: int | None, runs: Path | None = None
+) -> list[Row]:
     """The summary row of one peer on one problem and a row per seed; one row where it is missing or fails."""
     steps, iterations = peer.budget(problem, quick, peer_steps)
     case = f"{problem.env_id}, morl-baselines {peer.label}, {iterations} × {steps:,} steps"
@@ -498,7 +515,7 @@ def _peer_rows(peer: Peer, problem: Problem, seeds: list[int], quick: bool, peer
     model = _model(problem, env, learner["gamma"])
     best = _best(problem, env, model, weights, learner["gamma"])
     try:
-        outcomes = [_train_peer(peer, algorithm, problem, learner, weights, model, seed, steps, iterations)
+        outcomes = [_train_peer(peer, algorithm, problem, learner, weights, model, seed, steps, iterations, runs)
                     for seed in seeds]  # fmt: skip
     except Exception as error:  # noqa: BLE001 - another version's API: say so in the table, go on
         return [Row(NAME, case, f"failed: {type(error).__name__}: {error}")]
@@ -510,13 +527,12 @@ def _peer_rows(peer: Peer, problem: Problem, seeds: list[int], quick: bool, peer
 
 def _train_peer(
     peer: Peer, algorithm: Any, problem: Problem, learner: dict[str, Any], weights: np.ndarray, model: Any,
-    seed: int, steps: int, iterations: int,
+    seed: int, steps: int, iterations: int, runs: Path | None,
 ) -> Outcome:  # fmt: skip
     """One seeded run of a peer, its GPI scored like ours: exactly by the model, else by rollouts."""
     seed_peer_generators(seed)
-    start = time.perf_counter()
-    agent = peer.train(algorithm, problem, learner, seed, steps, iterations)
-    wall_time = time.perf_counter() - start
+    checkpoint = None if runs is None else Path(runs) / f"{problem.env_id}-{peer.name}-s{seed}.pkl"
+    agent, wall_time = peer.train(algorithm, problem, learner, seed, steps, iterations, checkpoint)
     if model is None:
         eu = rollout_expected_utility(problem, agent.eval, weights, learner["gamma"], seed)
     else:

@@ -23,7 +23,6 @@ undiscounted (the ceiling in the rows); the discounted front is not known.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -43,6 +42,7 @@ from benchmarks.bench_known_fronts import (
     seeded,
     summary_row,
 )
+from benchmarks.gpi_ls_runs import train_gpi_ls
 from sb3_sfgpi import MASFOLS, SwapTerminationsTruncations
 from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, MLP_RUN
 from sb3_sfgpi.common.seeding import derive_seed
@@ -96,8 +96,8 @@ def run(
     :param quick: the smoke run's tiny budget
     :param seeds: the seeds (default 0, 1, 2)
     :param peer_updates: the peer's gradient updates per env step (default: its script's 10)
-    :param runs: where our runs keep their run directories, ``item-gathering-s<seed>``, and go on from them (None: no
-        files; see :func:`~benchmarks.bench_known_fronts.learned`)
+    :param runs: where our runs keep their run directories, ``item-gathering-s<seed>``, and the peer its checkpoints,
+        and both go on from them (None: no files; see :func:`~benchmarks.bench_known_fronts.learned`)
     """
     try:
         import momaland  # noqa: F401 - the env's package: pip install momaland
@@ -111,7 +111,7 @@ def run(
     case = f"{ENV_ID} (2 agents, d=3), MA-SFOLS + GPI, {iterations} × {steps:,} joint steps"
     rows = [summary_row(NAME, case, ours, None, ceiling, seeds)]
     rows += [seed_row(NAME, f"{ENV_ID} seed {seed}", o, None) for seed, o in zip(seeds, ours, strict=True)]
-    return rows + _peer_rows(weights, seeds, steps, iterations, peer_updates, ceiling)
+    return rows + _peer_rows(weights, seeds, steps, iterations, peer_updates, ceiling, runs)
 
 
 def _train_ours(weights: np.ndarray, seed: int, steps: int, iterations: int, runs: Path | None) -> Outcome:
@@ -143,9 +143,16 @@ def _team_expected_utility(test: list[dict[str, Any]]) -> float:
 
 # --- MOMAland's GPI-LS (optional: pip install morl-baselines) --------------------------------------------------------
 def _peer_rows(
-    weights: np.ndarray, seeds: list[int], steps: int, iterations: int, updates: int | None, ceiling: str
+    weights: np.ndarray,
+    seeds: list[int],
+    steps: int,
+    iterations: int,
+    updates: int | None,
+    ceiling: str,
+    runs: Path | None = None,
 ) -> list[Row]:
-    """The peer's summary row and a row per seed; one row where morl-baselines is missing."""
+    """The peer's summary row and a row per seed (its checkpoints in ``runs``, ``item-gathering-GPILS-s<seed>.pkl``,
+    where given); one row where morl-baselines is missing."""
     settings = PEER_SETTINGS | ({} if updates is None else {"gradient_updates": updates})
     case = (
         f"{ENV_ID}, MOMAland's GPI-LS (morl-baselines, centralised), {iterations} × {steps:,} steps, "
@@ -160,7 +167,7 @@ def _peer_rows(
     def centralised() -> Any:
         return CentraliseAgent(make_env(), action_mapping=True)
 
-    outcomes = [_train_peer(GPILS, centralised, settings, weights, seed, steps, iterations) for seed in seeds]
+    outcomes = [_train_peer(GPILS, centralised, settings, weights, seed, steps, iterations, runs) for seed in seeds]
     rows = [summary_row(NAME, case, outcomes, None, ceiling, seeds)]
     return rows + [
         seed_row(NAME, f"{ENV_ID} GPI-LS seed {seed}", o, None) for seed, o in zip(seeds, outcomes, strict=True)
@@ -169,25 +176,29 @@ def _peer_rows(
 
 def _train_peer(
     algorithm: Any, make: Callable[[], Any], settings: dict[str, Any], weights: np.ndarray, seed: int, steps: int,
-    iterations: int,
+    iterations: int, runs: Path | None,
 ) -> Outcome:  # fmt: skip
-    """One seeded run of the peer (its global generators seeded, as MOMAland's script does not), scored as ours."""
+    """One seeded run of the peer (its global generators seeded, as MOMAland's script does not), scored as ours; with
+    ``runs``, continued from its checkpoint there (:func:`~benchmarks.gpi_ls_runs.train_gpi_ls`)."""
     seed_peer_generators(seed)
-    env = seeded(make(), seed)
-    eval_env = make()
-    eval_env.reset(seed=derive_seed(seed, "peer eval"))
-    agent = algorithm(env, seed=seed, log=False, device=peer_device(), **settings)
-    drop_sampled_indices(agent)
-    start = time.perf_counter()
-    agent.train(
-        total_timesteps=steps * iterations, eval_env=eval_env, ref_point=np.zeros(len(ITEMS)),
-        weight_selection_algo="gpi-ls", timesteps_per_iter=steps, checkpoints=False,
-    )  # fmt: skip
-    wall_time = time.perf_counter() - start
+
+    def agent() -> Any:
+        made = algorithm(seeded(make(), seed), seed=seed, log=False, device=peer_device(), **settings)
+        drop_sampled_indices(made)
+        return made
+
+    def eval_env() -> Any:
+        env = make()
+        env.reset(seed=derive_seed(seed, "peer eval"))
+        return env
+
+    checkpoint = None if runs is None else Path(runs) / f"item-gathering-GPILS-s{seed}.pkl"
+    stored = settings | {"seed": seed, "steps_per_iteration": steps}
+    run = train_gpi_ls(agent, eval_env, stored, steps, iterations, checkpoint)
     scoring = make()  # one env: each episode's seeded reset decides it
-    eu = float(np.mean([_centralised_return(scoring, agent.eval, w, derive_seed(seed, "eval", i)) @ w
+    eu = float(np.mean([_centralised_return(scoring, run.agent.eval, w, derive_seed(seed, "eval", i)) @ w
                         for i, w in enumerate(weights)]))  # fmt: skip
-    return Outcome(eu, None, wall_time, int(agent.global_step), len(agent.weight_support), iterations)
+    return Outcome(eu, None, run.wall_time, int(run.agent.global_step), len(run.agent.weight_support), iterations)
 
 
 def _centralised_return(env: Any, act: Callable[[Any, np.ndarray], int], w: np.ndarray, seed: int) -> np.ndarray:
