@@ -90,7 +90,7 @@ class MASFOLS:
     :param run_dir: where Π, evaluations, checkpoints and logs go (None: nowhere). :attr:`run_info` is written to
         its ``run.json`` when :meth:`learn` starts; a resume builds the learners from it alone, so with a run
         directory ``learner_kwargs`` are those a run file takes (numbers, strings, ``policy_kwargs`` with
-        ``net_arch``, ``n_heads`` and ``gpi_priorities``: no classes)
+        ``net_arch`` and ``n_heads``: no classes)
     :param verbose: 1 prints a line per iteration, and the policies validation leaves out or retires
     :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them);
         ``pool_replay`` with several agents or other learners than tables; ``episode_weights="support"`` or

@@ -48,19 +48,17 @@ LEARNER_ARGUMENTS = frozenset(
 REPLAY_BUFFER_NAMES = ("MOReplayBuffer", "PrioritizedMOReplayBuffer")
 #: Replay buffer arguments a run file may set (the prioritised buffer's, numbers).
 REPLAY_BUFFER_ARGUMENTS = frozenset({"alpha", "min_priority"})
-#: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads``, ``gpi_priorities``: a
-#: conditioned network's).
-POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads", "gpi_priorities"})
+#: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads``: a conditioned network's).
+POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads"})
 _MAX_WIDTH = 1 << 16
 #: A conditioned network's counts a run file may set, each with its least (also its default) and largest value.
-_POLICY_COUNTS = {"n_heads": (1, 16), "gpi_priorities": (0, 1 << 16)}
+_POLICY_COUNTS = {"n_heads": (1, 16)}
 
 
 def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
     """
     Refuse learner arguments of a run file that are not on :data:`LEARNER_ARGUMENTS` (or, in ``policy_kwargs``, on
-    :data:`POLICY_ARGUMENTS`, ``net_arch`` a short list of positive widths, ``n_heads`` a small positive count,
-    ``gpi_priorities`` a small count).
+    :data:`POLICY_ARGUMENTS`, ``net_arch`` a short list of positive widths, ``n_heads`` a small positive count).
 
     :param source: the file, named in the error
     :raises ValueError: naming the argument

@@ -3,7 +3,6 @@ support, Π members bound to their weights, safe files, exploration counted acro
 
 from __future__ import annotations
 
-import copy
 import json
 
 import numpy as np
@@ -12,7 +11,6 @@ import torch as th
 from momdp import Fig1MOMDP, observation, optimal_policy, optimal_value, policy_of, policy_value, successor_features
 
 from sb3_sfgpi import MASFOLS, GPIPolicy
-from sb3_sfgpi.common.prioritized_buffer import PrioritizedMOReplayBuffer
 from sb3_sfgpi.common.weights import SAME_WEIGHT
 from sb3_sfgpi.ols import unique_points
 from sb3_sfgpi.policy_files import CorruptPolicySetError
@@ -130,87 +128,6 @@ def test_the_target_bootstraps_from_the_lowest_head_and_every_head_learns_it():
     assert not th.equal(heads[0], heads[1])  # the heads differ: the lowest one is a choice
     with pytest.raises(ValueError, match="at least one head"):
         SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(n_heads=0))
-
-
-def _gpi_bootstrap_by_brute_force(policy, next_observation: th.Tensor, w: th.Tensor, policies) -> th.Tensor:
-    """GPI's ``ψ_target(s', a, w'')`` for ``w`` by a loop over ``policies`` (weights ``w''``), actions and heads: the
-    lowest head by ``w`` of the best weight and action by ``w``."""
-    best, expected = -np.inf, None
-    for w_policy in policies:
-        with th.no_grad():
-            heads = policy.sf_net_target.heads(next_observation, w_policy)[:, 0]  # (n_heads, A, d)
-        for a in range(heads.shape[1]):
-            lowest = heads[(heads[:, a] @ w).argmin(), a]
-            if (lowest @ w).item() > best:
-                best, expected = (lowest @ w).item(), lowest
-    return expected
-
-
-def _gpi_prioritised(gpi_priorities: int, support: list[list[float]], steps: int) -> SFDQN:
-    """A small three-head conditioned learner on prioritised replay with GPI's priorities, trained ``steps`` steps."""
-    model = SFDQN(
-        "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), weights=SUPPORT[0], gamma=GAMMA, batch_size=8,
-        learning_starts=0, replay_buffer_class=PrioritizedMOReplayBuffer,
-        policy_kwargs=dict(net_arch=[16, 16], n_heads=3, gpi_priorities=gpi_priorities), seed=0,
-    )  # fmt: skip
-    model.set_weight_support(support)
-    model.learn(steps)
-    return model
-
-
-def test_gpis_target_bootstraps_from_the_best_weight_and_action_of_the_lowest_heads_by_brute_force():
-    model = _gpi_prioritised(2, [[0.8, 0.2], [0.3, 0.7], [0.5, 0.5], [0.1, 0.9]], 20)
-    policy, batch = model.policy, model.replay_buffer.sample(8)
-    rows_w = th.as_tensor(np.random.default_rng(3).dirichlet(np.ones(2), 8), dtype=th.float32, device=policy.device)
-    th.manual_seed(7)
-    with th.no_grad():
-        target = policy._gpi_bootstrap(batch.next_observations, rows_w, None)
-    th.manual_seed(7)
-    drawn = policy.support[th.randperm(len(policy.support), device=policy.support.device)[:2]]
-    assert len(drawn) == 2
-    for i, w in enumerate(rows_w):  # the row's own weights and the drawn ones
-        expected = _gpi_bootstrap_by_brute_force(policy, batch.next_observations[i : i + 1], w, [w, *drawn])
-        th.testing.assert_close(target[i], expected, rtol=1e-5, atol=1e-6)
-    with pytest.raises(ValueError, match="gpi_priorities must be a non-negative integer"):
-        SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(gpi_priorities=-1))
-    with pytest.raises(ValueError, match="gpi_priorities sets prioritised replay's priorities: it needs"):
-        SFDQN("ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), policy_kwargs=dict(gpi_priorities=4))
-
-
-def _gpi_priorities(model: SFDQN, rows: np.ndarray) -> np.ndarray:
-    """The priorities of ``rows`` against GPI's target over the policy's weights and its whole support, by brute
-    force: ``max(|w · (ψ_head(s, a, w) − (r + γ (1 − done) ψ_GPI))|, 0.01) ** 0.6``, the head that errs most."""
-    policy, batch, w = model.policy, model.replay_buffer.samples_at(rows), model.policy.weights
-    with th.no_grad():
-        current = policy.sf_net.heads(batch.observations, w)[:, th.arange(len(rows)), batch.actions.long().flatten()]
-        next_psi = [
-            _gpi_bootstrap_by_brute_force(policy, batch.next_observations[i : i + 1], w, [w, *policy.support])
-            for i in range(len(rows))
-        ]
-        target = batch.rewards + (1 - batch.dones) * GAMMA * th.stack(next_psi)
-    return np.maximum(((current - target) @ w).abs().max(dim=0).values.numpy(), 0.01) ** 0.6
-
-
-def test_gpi_priorities_measure_errors_against_gpis_target_and_leave_the_loss_as_it_was():
-    model = _gpi_prioritised(4, [[0.8, 0.2], [0.3, 0.7], [0.5, 0.5]], 30)  # 4 or more: GPI over the whole support
-    policy, buffer = model.policy, model.replay_buffer
-    plain, plain_buffer = copy.deepcopy(policy), copy.deepcopy(buffer)
-    plain.gpi_priorities = 0
-    np.random.seed(5)
-    rows = buffer.sample(8).rows
-    expected = _gpi_priorities(model, rows)  # before the step
-    losses = []
-    for each, replay in ((policy, buffer), (plain, plain_buffer)):
-        np.random.seed(5)  # the same rows and support draws
-        th.manual_seed(5)
-        losses.append(each.td_update(replay, 8, GAMMA, 10.0))
-    np.testing.assert_allclose(buffer.tree.leaves(rows), expected, rtol=1e-5)
-    assert losses[0] == losses[1]  # the loss is the TD target's either way
-    assert not np.allclose(buffer.tree.leaves(rows), plain_buffer.tree.leaves(rows))
-    model.set_weights(SUPPORT[1])
-    model.learn(0, reset_num_timesteps=False)  # learning for new weights starts by scoring every row by GPI for them
-    every = buffer.stored_rows()
-    np.testing.assert_allclose(buffer.tree.leaves(every), _gpi_priorities(model, every), rtol=1e-5)
 
 
 def test_exploration_steps_count_across_calls_of_learn():

@@ -98,8 +98,6 @@ def test_an_option_given_again_on_the_command_line_vouches_for_the_run_file(four
         ({"policy_kwargs": [1]}, "'policy_kwargs' must be an object"),
         ({"policy_kwargs": {"n_heads": 0}}, "'n_heads' must be an integer in [1, 16], got 0"),
         ({"policy_kwargs": {"n_heads": True}}, "'n_heads' must be an integer in [1, 16], got True"),
-        ({"policy_kwargs": {"gpi_priorities": -1}}, "'gpi_priorities' must be an integer in [0, 65536], got -1"),
-        ({"policy_kwargs": {"gpi_priorities": "4"}}, "'gpi_priorities' must be an integer in [0, 65536], got '4'"),
     ],
 )
 def test_a_run_file_sets_only_allowed_learner_arguments(four_room_run, tmp_path, capsys, learner, message):

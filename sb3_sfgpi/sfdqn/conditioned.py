@@ -144,12 +144,7 @@ class ConditionedPolicy(SFDQNPolicy):
     ``a* = argmax_a w' · ψ(s', a, w')`` (online network picks, target network evaluates) and, with several heads,
     ``ψ_target`` the target head of lowest ``w' · ψ`` there (an overestimate of one head is not bootstrapped).
 
-    With prioritised replay a transition's priority is its error for ``w`` (the head that errs most). With
-    ``gpi_priorities = k`` it is its error against GPI's target instead (GPI-PD's prioritisation):
-    ``r + γ (1 − terminated) ψ_target(s', a*, w*)`` with ``(w*, a*) = argmax_{w'' ∈ {w} ∪ K, a} w · ψ_target(s', a,
-    w'')`` over ``K``, ``k`` support weights drawn for the minibatch, each target network's value the lowest of its
-    heads. The loss is unchanged, but a transition from which another weight's policy does better for ``w`` than the
-    learner believes is drawn sooner.
+    With prioritised replay a transition's priority is its error for ``w`` (the head that errs most).
 
     Acting for weights ``w`` is GPI over the support and ``w`` itself:
     ``argmax_a max_{w' ∈ support ∪ {w}} w · ψ(s, a, w')``: what the network learned for the other weights of
@@ -161,8 +156,6 @@ class ConditionedPolicy(SFDQNPolicy):
     :param reward_dim: Number of objectives ``d``
     :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
     :param n_heads: Number of heads of the network (:data:`CONDITIONED_HEADS` by default)
-    :param gpi_priorities: how many support weights the priorities' target also bootstraps from by GPI (0: the
-        priorities are the errors of the TD target)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate (default: ``foreach``)
     :param kwargs: further :class:`~sb3_sfgpi.sfdqn.policies.SFDQNPolicy` arguments
     """
@@ -176,13 +169,9 @@ class ConditionedPolicy(SFDQNPolicy):
         *args: Any,
         net_arch: list[int] | None = None,
         n_heads: int = CONDITIONED_HEADS,
-        gpi_priorities: int = 0,
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
-        if isinstance(gpi_priorities, bool) or not isinstance(gpi_priorities, int) or gpi_priorities < 0:
-            raise ValueError(f"gpi_priorities must be a non-negative integer, got {gpi_priorities!r}")
-        self.gpi_priorities = gpi_priorities
         # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them (unless
         # told otherwise, or to fuse them)
         optimizer_kwargs = dict(optimizer_kwargs or {})
@@ -239,20 +228,16 @@ class ConditionedPolicy(SFDQNPolicy):
             weights = th.cat([weights, self.support[drawn].to(weights.device)])
         current_heads, target_psi = self._heads_and_target(batch, weights, gamma)
         own = slice(0, batch_size)  # the rows learned for the policy's weights: their errors are the priorities
-        measured = self._priority_target(batch, weights[own], gamma, target_psi[own])
-        self.give_back_errors(replay_buffer, batch, current_heads[:, own].detach(), measured)
+        self.give_back_errors(replay_buffer, batch, current_heads[:, own].detach(), target_psi[own])
         loss = F.smooth_l1_loss(current_heads, target_psi.expand_as(current_heads), reduction="none")
         return self.gradient_step(loss.mean(dim=(1, 2)).sum(), max_grad_norm)
 
     def current_and_target(self, batch: MOReplayBufferSamples, gamma: float) -> tuple[th.Tensor, th.Tensor]:
         """
         Each head's ``ψ(s, a, w)`` of the sampled transitions for the policy's weights ``w`` (with its gradient),
-        shape ``(n_heads, batch, d)``, and the target their priorities are measured against (see the class: the TD
-        target, or GPI's with ``gpi_priorities``), shape ``(batch, d)``.
+        shape ``(n_heads, batch, d)``, and their TD target, shape ``(batch, d)``.
         """
-        weights = self.weights.expand(len(batch.rewards), -1)
-        current_heads, target_psi = self._heads_and_target(batch, weights, gamma)
-        return current_heads, self._priority_target(batch, weights, gamma, target_psi)
+        return self._heads_and_target(batch, self.weights.expand(len(batch.rewards), -1), gamma)
 
     def weighted_errors(self, current_psi: th.Tensor, target_psi: th.Tensor) -> th.Tensor:
         """``|w · (ψ(s, a, w) − target)|`` of the head that errs most, shape ``(batch,)``."""
@@ -281,48 +266,5 @@ class ConditionedPolicy(SFDQNPolicy):
         current_heads = self.sf_net.heads(observations, weights)[:, rows, repeated(batch.actions).long().flatten()]
         return current_heads, target_psi
 
-    @th.no_grad()
-    def _priority_target(
-        self, batch: MOReplayBufferSamples, weights: th.Tensor, gamma: float, target_psi: th.Tensor
-    ) -> th.Tensor:
-        """
-        The target the priorities of ``batch`` are measured against: ``target_psi`` (its TD target for the policy's
-        weights), or with ``gpi_priorities`` and a support of several weights GPI's target (see the class).
-
-        :param weights: the policy's weights for each row, shape ``(batch, d)``
-        """
-        if not (self.gpi_priorities and len(self.support) > 1):
-            return target_psi
-        next_psi = self._gpi_bootstrap(batch.next_observations, weights, batch.next_action_masks)  # type: ignore[arg-type]
-        return batch.rewards + (1 - batch.dones) * gamma * next_psi
-
-    def _gpi_bootstrap(self, next_observations: th.Tensor, weights: th.Tensor, masks: th.Tensor | None) -> th.Tensor:
-        """
-        GPI's ``ψ_target(s', a*, w*)`` for each row's weights ``w`` over ``w`` and ``gpi_priorities`` support weights
-        drawn uniformly without replacement (see the class), shape ``(rows, d)``.
-
-        :param next_observations: ``s'`` of each row, shape ``(rows, ...)``
-        :param weights: each row's ``w``, shape ``(rows, d)``
-        :param masks: True for the actions each ``s'`` has, shape ``(rows, n_actions)``, or None
-        """
-        n_rows, support = len(weights), self.support.to(weights.device)
-        drawn = support[th.randperm(len(support), device=support.device)[: self.gpi_priorities]]
-        policies = th.cat([weights, drawn.repeat_interleave(n_rows, dim=0)])  # each row's own, then each drawn one
-        copies = len(drawn) + 1
-        heads = self.sf_net_target.heads(
-            next_observations.repeat(copies, *([1] * (next_observations.dim() - 1))), policies
-        )
-        values = weighted_sum(heads, weights.repeat(copies, 1).unsqueeze(1))  # (n_heads, copies · rows, n_actions)
-        lowest = values.argmin(dim=0, keepdim=True)
-        psi = heads.gather(0, lowest.unsqueeze(-1).expand(1, *heads.shape[1:])).squeeze(0)  # (copies · rows, A, d)
-        q_values = values.gather(0, lowest).squeeze(0)
-        if masks is not None:
-            q_values = q_values.masked_fill(~masks.repeat(copies, 1), -th.inf)
-        n_actions = q_values.shape[-1]
-        best = q_values.view(copies, n_rows, n_actions).permute(1, 0, 2).reshape(n_rows, -1).argmax(dim=1)
-        chosen = (best // n_actions) * n_rows + th.arange(n_rows, device=best.device)  # the policy's row
-        return psi[chosen, best % n_actions]
-
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        counts = {"n_heads": self.n_heads, "gpi_priorities": self.gpi_priorities}
-        return {**super()._get_constructor_parameters(), **counts}
+        return {**super()._get_constructor_parameters(), "n_heads": self.n_heads}

@@ -180,8 +180,6 @@ class SFDQN(MOOffPolicyAlgorithm):
         prioritised = isinstance(self.replay_buffer, PrioritizedMOReplayBuffer)
         if prioritised and isinstance(self.policy, TabularPolicy):
             raise ValueError("prioritised replay is for network policies: a table learns every sampled row exactly")
-        if self.conditioned and self.policy.gpi_priorities and not prioritised:
-            raise ValueError("gpi_priorities sets prioritised replay's priorities: it needs PrioritizedMOReplayBuffer")
         fraction = self.exploration_fraction if self.exploration_steps is None else 1.0  # of exploration_steps
         self.exploration_schedule = LinearSchedule(self.exploration_initial_eps, self.exploration_final_eps, fraction)
         self.set_weights(self._weights)
