@@ -3,6 +3,7 @@ and the Monte-Carlo EU by which a peer without a model (minecart's GPI-LS) is sc
 
 from __future__ import annotations
 
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -145,3 +146,20 @@ def test_our_runs_resume_from_their_run_directories_exactly_and_refuse_other_set
     assert again.wall_time == cut.wall_time  # read, not trained again
     with pytest.raises(ValueError, match="holds a run of other settings"):
         train((1_500, 2), tmp_path / "cut", random_weights(2, 5, rng=1))
+
+
+def test_a_run_of_the_command_line_is_the_benchmarks_run(tmp_path):
+    """``sb3-sfgpi train <env id> --seed S`` with the benchmark's budget, linked into ``--runs``, is read as its own run
+    (the same settings, the learners' device included), not refused and not trained again."""
+    from sb3_sfgpi.cli import main
+
+    runs = tmp_path / "runs"
+    steps, iterations = bench.PROBLEMS["deep-sea-treasure"].quick
+    command = ["train", "deep-sea-treasure-v0", "--seed", "0", "--iterations", str(iterations)]
+    command += ["--steps-per-iteration", str(steps), "--out", str(runs / "deep-sea-treasure-s0"), "--no-progress"]
+    assert main(command) == 0
+    policy, learner = bench._learner_of(bench.PROBLEMS["deep-sea-treasure"])
+    weights = random_weights(2, bench.N_TEST_WEIGHTS, rng=0)
+    history = json.loads((runs / "deep-sea-treasure-s0" / "evaluation.json").read_text())
+    outcome = bench._train_sfols("deep-sea-treasure", policy, learner, weights, None, 0, True, runs)
+    assert outcome.iterations == iterations and outcome.wall_time == history[-1]["wall_time"]
