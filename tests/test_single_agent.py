@@ -115,14 +115,14 @@ def test_the_command_line_trains_a_deep_id_with_one_conditioned_learner_and_resu
     """Minecart (continuous observations): the deep preset's one ψ(s, a, w) for the run, its state kept for resume."""
     out = tmp_path / "minecart"
     short = ["--steps-per-iteration", "150", "--set", "n_test_weights=1", "--set", "value_episodes=1"]
-    short += ["--set", "validation_weights=2"]  # the preset's 50 validation episodes would be most of the test
+    short += ["--set", "validation_weights=2"]  # the preset's 200 validation episodes would be most of the test
     short += ["--env", "max_episode_steps=100"]  # an idle cart's evaluation episodes end at 100 steps, not 1,000
     assert main(["train", "minecart-v0", "--iterations", "1", *short, "--out", str(out), "--no-progress"]) == 0
     config = json.loads((out / "run.json").read_text())
     assert config["policy"] == "ConditionedMlpPolicy" and config["learner_kwargs"]["exploration_steps"] == 50_000
     assert config["prune"] and config["learner_kwargs"]["buffer_size"] == 200_000  # not cut
     assert config["episode_weights"] == "support"  # each episode acts for a weight of the support
-    assert gym_preset("minecart-v0")["validation_weights"] == 50
+    assert gym_preset("minecart-v0")["validation_weights"] == 200
     assert [p.name for p in (out / "learners").iterdir()] == ["iteration_001.pt"]
     resumed = ["train", "minecart-v0", "--iterations", "2", *short, "--out", str(out), "--resume", "--no-progress"]
     assert main(resumed) == 0

@@ -72,13 +72,14 @@ MLP_LEARNER = {
 #: The run settings of tables besides their learner's: a new policy joins Π only if GPI does no worse with it on 50
 #: validation weights.
 TABULAR_RUN = {"validation_weights": 50, "prune": False}
-#: The run settings of deep learners besides their learner's: a member of Π is the conditioned network as it was when
-#: it joined; it joins only if GPI does no worse with it on 50 validation weights, and members GPI does better without
-#: retire (measured against members that follow the learner's latest network on minecart); every episode acts, and
-#: trains its half of each minibatch, for a weight drawn from the learner's support, GPI-LS's behaviour; after every
-#: iteration the learner's latest network is offered again at the support's earlier weights, for validation to admit
-#: (each measured on minecart and deep-sea-treasure with MLP SFs: docs, experiments/levers).
-MLP_RUN = {"validation_weights": 50, "prune": True, "episode_weights": "support", "rebind_support": True}
+#: The run settings of deep learners besides their learner's: a member of Π is the conditioned network as it was when it
+#: joined; it joins only if GPI does no worse with it on 200 validation weights, and members GPI does better without
+#: retire (measured against members that follow the learner's latest network on minecart; 200 weights against 50 find
+#: the members that make GPI wander between them on minecart-deterministic); every episode acts, and trains its half of
+#: each minibatch, for a weight drawn from the learner's support, GPI-LS's behaviour; after every iteration the
+#: learner's latest network is offered again at the support's earlier weights, for validation to admit (each measured on
+#: minecart and deep-sea-treasure with MLP SFs: docs, experiments/levers).
+MLP_RUN = {"validation_weights": 200, "prune": True, "episode_weights": "support", "rebind_support": True}
 
 
 def make_gym_env(env_id: str, **env_kwargs: Any) -> SingleAgentParallelEnv:
