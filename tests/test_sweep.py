@@ -105,11 +105,12 @@ def local_ray():
     ray.shutdown()
 
 
-#: A sweep whose first run is killed: its second iteration of 20,000 steps still has about a second of work left when
-#: the kill lands (Four-Room's compiled joint steps run 3,000 in a few hundredths of a second: a run of those could
-#: finish before the kill); the other run, never killed, stays tiny.
+#: A sweep whose first run is killed: its second iteration of 60,000 steps takes about three seconds, longer than the
+#: up to ``SHIP_SECONDS`` (2 s) its first checkpoint may take to reach home without a shared filesystem (20,000 steps,
+#: about a second, often ended before the kill could land; Four-Room's compiled joint steps run 3,000 in a few
+#: hundredths of a second); the other run, never killed, stays tiny.
 KILLED_SWEEP = grid(
-    ["four-room"], ["ma-sfols"], [0], options=[*TINY, "--iterations", "2", "--steps-per-iteration", "20000"]
+    ["four-room"], ["ma-sfols"], [0], options=[*TINY, "--iterations", "2", "--steps-per-iteration", "60000"]
 )
 KILLED_SWEEP += grid(["four-room"], ["random"], [0], options=TINY)
 
