@@ -4,8 +4,9 @@ MO-Gymnasium's ``convex_coverage_set(γ)`` of minecart prices every trip from a 
 trip without ore, (0, 0, −0.249) at γ 0.98 (accelerate, idle, turn around, idle), does not bring the env's cart
 home, so the set promises a point no policy reaches and every score against it is too low. :func:`cheapest_empty_trip`
 finds the cheapest such trip by exhaustive search of the env itself, and :func:`convex_coverage_set` is MO-Gymnasium's
-set with that trip in place of its own. Its trips with ore stay the model's (they are too long to search; learners
-beat them on every seed, so they do not overstate the optimum).
+set with that trip in place of its own. Its trips with ore stay the model's: they are too long to search, and whether
+they are optimal is not known (on minecart-v0 the deep preset's runs beat them on every seed; on
+minecart-deterministic its ore trips stay below them).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ class Trip:
 @functools.cache
 def cheapest_empty_trip(env_id: str, gamma: float, max_steps: int = 50) -> Trip:
     """The trip home without ore of least discounted fuel, by breadth-first search over every sequence of ``MOVES``
-    in the env ``env_id`` (about 250,000 env steps, 10 s; cached).
+    in the env ``env_id`` (about 234,000 env steps, 12 s; cached).
 
     Sequences that reach the same cart state at the same step are merged (the cheaper one is kept: what follows costs
     both the same); a branch is cut where one more step of idle fuel alone makes it no cheaper than the best trip
