@@ -11,10 +11,11 @@ scored on 50 Dirichlet(1) test weights (``random_weights(d, 50, rng=0)``):
   Monte-Carlo score (its last ``mean_return``) is in the notes. Minecart has no model: its EU is that score.
 * **EU*** = mean of ``max_π w · V^π(s0)``: finite-horizon value iteration on the scalarised reward (deep-sea-treasure
   and fruit-tree: equal to the env's ``pareto_front(γ)``, see ``tests/test_known_fronts.py``; resource-gathering:
-  above it, the env's front being too low). Minecart: its ``convex_coverage_set(γ)``, an approximation (EU/EU* may
-  exceed 1), with the cheapest trip home without ore that the env drives in place of the set's own, which the env
-  cannot drive (:mod:`benchmarks.minecart_reference`); the row names MO-Gymnasium's EU* as well. Lunar lander has
-  no known front: its rows give EU alone, beside its peer's at the same env steps.
+  above it, the env's front being too low). Minecart: the front of trips searched in the env itself
+  (:mod:`benchmarks.minecart_reference`: every point driven, so EU* is at most the true one; a run exceeds it only
+  with a trip outside the search), not MO-Gymnasium's modelled ``convex_coverage_set(γ)``, which promises trips the
+  env does not drive and misses faster ones; the row names MO-Gymnasium's EU* as well. Lunar lander has no known
+  front: its rows give EU alone, beside its peer's at the same env steps.
 
 Rows: per problem, EU/EU* mean ± std over the seeds with the per-seed values, then one row per seed (wall time of
 training with its per-iteration evaluations, env steps of training, |Π|). Where ``morl_baselines`` imports, a peer
@@ -48,7 +49,7 @@ from sfgpi_envs.tabular_optimum import TabularMDP, deep_sea_treasure_mdp, fruit_
 
 from benchmarks._common import MORL_MISSING, Row
 from benchmarks.gpi_ls_runs import train_gpi_ls
-from benchmarks.minecart_reference import convex_coverage_set as minecart_ccs
+from benchmarks.minecart_reference import searched_front as minecart_front
 from sb3_sfgpi import MASFOLS
 from sb3_sfgpi.cli.gym_domains import (
     MLP_LEARNER,
@@ -84,7 +85,7 @@ class Problem:
     tabular: bool = True
     eval_episodes: int = 5  # the preset's
     model: Callable[[Any, float], TabularMDP] | None = None  # its exact model's builder (env, γ); None: none
-    ccs: Callable[[Any, float], np.ndarray] | None = None  # its reference CCS (env, γ) without a model; None: the env's
+    front: Callable[[Any, float], np.ndarray] | None = None  # its reference front (env, γ) without a model; None: env's
     known_front: bool = True  # False: no optimum to score against (EU alone)
 
     def budget(self, quick: bool) -> tuple[int, int]:
@@ -96,9 +97,9 @@ PROBLEMS = {
     "resource-gathering": Problem("resource-gathering-v0", 10_000, 12, (1_500, 2), model=resource_gathering_mdp),
     "fruit-tree": Problem("fruit-tree-v0", 5_000, 25, (1_000, 2), {"depth": 6}, model=fruit_tree_mdp),
     # GPI-PD's published budget (15 × 10,000); scored with the deep preset's γ, 0.98, as its minecart example
-    "minecart": Problem("minecart-v0", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1, ccs=minecart_ccs),
+    "minecart": Problem("minecart-v0", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1, front=minecart_front),
     "minecart-deterministic": Problem(
-        "minecart-deterministic-v0", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1, ccs=minecart_ccs
+        "minecart-deterministic-v0", 10_000, 15, (1_500, 2), tabular=False, eval_episodes=1, front=minecart_front
     ),  # fmt: skip
     # the tabular problem with the deep preset's MLP SFs: exact EU by the model, 10 × 10,000 steps
     "deep-sea-treasure-mlp": Problem(
@@ -194,7 +195,7 @@ def _best(problem: Problem, env: Any, model: Any, weights: np.ndarray, gamma: fl
         return float(np.mean([model.value(w) for w in weights]))
     if not problem.known_front:
         return None
-    front = (problem.ccs or _env_ccs)(env, gamma)
+    front = (problem.front or _env_ccs)(env, gamma)
     return float((weights @ front.T).max(axis=1).mean())
 
 
@@ -217,7 +218,7 @@ def _problem_rows(name: str, seeds: list[int], quick: bool, runs: Path | None = 
     steps, iterations = problem.budget(quick)
     case = f"{problem.env_id} (d={d}), SFOLS + GPI, {iterations} × {steps:,} steps"
     reference = "exact (value iteration)" if model is not None else "MO-Gymnasium's approximate CCS"
-    reference += "" if problem.ccs is None else f" as {problem.ccs.__module__} corrects it"
+    reference = reference if problem.front is None else f"the trips {problem.front.__module__} drives in the env"
     front = _front_expected_utility(env, weights, gamma)
     baseline = _reference(best) + ("" if best is None else f", {reference}")
     baseline += "" if front is None else f"; MO-Gymnasium's front: {front:.4f}"

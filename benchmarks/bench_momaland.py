@@ -10,7 +10,9 @@ so that a learner would bootstrap past the end of the items and not at the time 
 
 * **Ours**: :class:`~sb3_sfgpi.masfols.MASFOLS` with a learner per agent, the deep preset's (one weight-conditioned
   ψ(s, a, w) each, :data:`~sb3_sfgpi.cli.gym_domains.MLP_LEARNER`, :data:`~sb3_sfgpi.cli.gym_domains.MLP_RUN`) at
-  MOMAland's γ 0.99; one shared Π over both agents.
+  MOMAland's γ 0.99; one shared Π over both agents, each agent seeing itself as the first
+  (:class:`~sb3_sfgpi.SelfFirstAgentIds`: the env marks agents by their index, so that without it a member learned by
+  one agent misreads the other's observations).
 * **The peer** (where ``morl_baselines`` imports): morl-baselines' ``GPILS`` with the script's settings
   (:data:`PEER_SETTINGS`) on MOMAland's ``CentraliseAgent`` of the same env (one agent choosing the joint action from
   the map), 15 × 10,000 steps; its gradient updates per env step are the script's 10 unless ``peer_updates`` says.
@@ -43,7 +45,7 @@ from benchmarks.bench_known_fronts import (
     summary_row,
 )
 from benchmarks.gpi_ls_runs import train_gpi_ls
-from sb3_sfgpi import MASFOLS, SwapTerminationsTruncations
+from sb3_sfgpi import MASFOLS, SelfFirstAgentIds, SwapTerminationsTruncations
 from sb3_sfgpi.cli.gym_domains import MLP_LEARNER, MLP_RUN
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import random_weights
@@ -84,6 +86,12 @@ def make_env() -> Any:
     return SwapTerminationsTruncations(moitem_gathering_v0.parallel_env(num_timesteps=50, randomise=False))
 
 
+def make_agents_env() -> Any:
+    """Ours: :func:`make_env` with each agent seeing itself as the first (:class:`~sb3_sfgpi.SelfFirstAgentIds`), so
+    that one Π serves both agents."""
+    return SelfFirstAgentIds(make_env())
+
+
 def run(
     quick: bool = False,
     seeds: Sequence[int] | None = None,
@@ -120,11 +128,11 @@ def _train_ours(weights: np.ndarray, seed: int, steps: int, iterations: int, run
 
     def build(run_dir: Path | None) -> MASFOLS:
         return MASFOLS(
-            make_env(), policy=MLP_LEARNER["policy"], steps_per_iteration=steps, learner_kwargs=learner,
+            make_agents_env(), policy=MLP_LEARNER["policy"], steps_per_iteration=steps, learner_kwargs=learner,
             value_episodes=5, **MLP_RUN, test_weights=weights, eval_episodes=1, seed=seed, run_dir=run_dir, verbose=1,
         )  # fmt: skip
 
-    masfols = learned(build, make_env, runs, f"item-gathering-s{seed}", iterations)
+    masfols = learned(build, make_agents_env, runs, f"item-gathering-s{seed}", iterations)
     by_iteration = tuple(_team_expected_utility(entry["test"]) for entry in masfols.history)
     last = masfols.history[-1]
     return Outcome(

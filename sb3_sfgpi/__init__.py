@@ -14,7 +14,12 @@ if TYPE_CHECKING:  # type checkers and Sphinx see the names as imported
     from sb3_sfgpi.callbacks import OLSCallback, ValueEstimation
     from sb3_sfgpi.common.mo_callbacks import MOEvalCallback
     from sb3_sfgpi.common.mo_evaluation import mo_evaluate_policy
-    from sb3_sfgpi.common.parallel_wrappers import FlattenObservations, PadActions, SwapTerminationsTruncations
+    from sb3_sfgpi.common.parallel_wrappers import (
+        FlattenObservations,
+        PadActions,
+        SelfFirstAgentIds,
+        SwapTerminationsTruncations,
+    )
     from sb3_sfgpi.common.vec_env import make_mo_vec_env
     from sb3_sfgpi.evaluation import EvaluationConfig
     from sb3_sfgpi.gpi import GPIPolicy
@@ -46,6 +51,7 @@ __all__ = [
     "RandomSchedule",
     "RunDirectory",
     "RunSettings",
+    "SelfFirstAgentIds",
     "SwapTerminationsTruncations",
     "ValueEstimation",
     "__version__",
@@ -62,6 +68,7 @@ _MODULES = {
     "mo_evaluate_policy": "sb3_sfgpi.common.mo_evaluation",
     "FlattenObservations": "sb3_sfgpi.common.parallel_wrappers",
     "PadActions": "sb3_sfgpi.common.parallel_wrappers",
+    "SelfFirstAgentIds": "sb3_sfgpi.common.parallel_wrappers",
     "SwapTerminationsTruncations": "sb3_sfgpi.common.parallel_wrappers",
     "make_mo_vec_env": "sb3_sfgpi.common.vec_env",
     "EvaluationConfig": "sb3_sfgpi.evaluation",

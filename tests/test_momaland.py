@@ -9,7 +9,7 @@ import pytest
 from gymnasium import spaces
 from pettingzoo.test import parallel_api_test
 
-from sb3_sfgpi import MASFOLS, FlattenObservations, SwapTerminationsTruncations
+from sb3_sfgpi import MASFOLS, FlattenObservations, SelfFirstAgentIds, SwapTerminationsTruncations
 from sb3_sfgpi.common.parallel_wrappers import needs_flattening
 
 moitem_gathering_v0 = pytest.importorskip("momaland.envs.item_gathering.moitem_gathering_v0")
@@ -57,7 +57,32 @@ def test_swapped_flags_are_warned_about_once_and_the_wrapper_silences_it():
 
 def test_our_wrappers_pass_pettingzoos_api_test():
     parallel_api_test(FlattenObservations(moitem_gathering_v0.parallel_env()), num_cycles=30)
+    parallel_api_test(SelfFirstAgentIds(moitem_gathering_v0.parallel_env()), num_cycles=30)
     parallel_api_test(SwapTerminationsTruncations(mobeach_v0.parallel_env(num_agents=3)), num_cycles=30)
+
+
+def test_each_agent_sees_itself_first_and_the_others_in_their_order():
+    three = np.array([[1, 3, 1], [4, 1, 3]])  # three agents (1), items of two kinds
+    raw = moitem_gathering_v0.parallel_env(initial_map=three, num_timesteps=50)
+    wrapped = SelfFirstAgentIds(moitem_gathering_v0.parallel_env(initial_map=three, num_timesteps=50))
+    seen, views = raw.reset(seed=0)[0], wrapped.reset(seed=0)[0]
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        for agent, (own, board) in seen.items():
+            view_id, view = views[agent]
+            assert view_id == -1 and view.shape == board.shape
+            assert np.array_equal(view == -1, board == own)  # itself where it stands
+            others = sorted(int(-v) for v in np.unique(board[(board < 0) & (board != own)]))
+            for label, index in enumerate(others, start=2):  # the others, -2, -3, ... in their order
+                assert np.array_equal(view == -label, board == -index)
+            assert np.array_equal(view[board >= 0], board[board >= 0])  # items and empty cells as they were
+        actions = {agent: int(rng.integers(5)) for agent in raw.agents}
+        seen, views = raw.step(actions)[0], wrapped.step(actions)[0]
+
+
+def test_self_first_ids_refuse_observations_without_agent_ids():
+    with pytest.raises(ValueError, match="agent id, map"):
+        SelfFirstAgentIds(mobeach_v0.parallel_env(num_agents=3))
 
 
 def test_flattening_keeps_flat_spaces_as_they_are():

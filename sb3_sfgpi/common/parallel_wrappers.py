@@ -143,6 +143,51 @@ class SwapTerminationsTruncations(BaseParallelWrapper):
         return observations, rewards, truncations, terminations, infos
 
 
+class SelfFirstAgentIds(BaseParallelWrapper):
+    """
+    Each agent's observation as the first agent would see it, for envs that mark agents by their index: MOMAland's
+    item gathering hands each agent ``(its id, the map)``, agent ``i`` being ``-(i + 1)`` in both. Wrapped, an agent
+    sees itself as ``-1`` and the others as ``-2, -3, …`` in their order, so that what one agent learned serves
+    another (one Π over homogeneous agents, MA-SFOLS's); unwrapped, a member learned by agent 0 reads agent 1's
+    observations as if agent 1 were the other agent. Spaces, rewards and the rest pass through:
+    ``MASFOLS(SelfFirstAgentIds(SwapTerminationsTruncations(moitem_gathering_v0.parallel_env())), ...)``.
+
+    :raises ValueError: an agent whose observation space is not ``Tuple(Discrete(n, start=-n), Box)``, ``n`` the
+        number of agents
+    """
+
+    def __init__(self, env: Any):
+        super().__init__(env)
+        n = len(env.possible_agents)
+        for agent in env.possible_agents:
+            space = env.observation_space(agent)
+            parts = space.spaces if isinstance(space, spaces.Tuple) else ()
+            if not (
+                len(parts) == 2 and isinstance(parts[0], spaces.Discrete) and isinstance(parts[1], spaces.Box)
+                and int(parts[0].n) == n and int(parts[0].start) == -n
+            ):  # fmt: skip
+                raise ValueError(
+                    f"SelfFirstAgentIds takes (agent id, map) observations with ids -1 to -{n}; {agent!r} has {space}"
+                )
+
+    @staticmethod
+    def _self_first(observation: tuple[Any, np.ndarray]) -> tuple[int, np.ndarray]:
+        own, board = -int(observation[0]), np.asarray(observation[1])
+        relabelled = board.copy()
+        relabelled[board == -own] = -1
+        relabelled[(board < 0) & (board > -own)] -= 1  # the agents before it, one place later
+        return -1, relabelled
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+        observations, infos = self.env.reset(seed=seed, options=options)
+        return {agent: self._self_first(obs) for agent, obs in observations.items()}, infos
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
+        observations, rewards, terminations, truncations, infos = self.env.step(actions)
+        relabelled = {agent: self._self_first(obs) for agent, obs in observations.items()}
+        return relabelled, rewards, terminations, truncations, infos
+
+
 def time_limit(env: Any) -> int | None:
     """The episode length an env declares (MOMAland's ``num_timesteps``, PettingZoo's ``max_cycles``), if any."""
     for name in TIME_LIMIT_ATTRIBUTES:
