@@ -8,11 +8,12 @@ The env is ``moitem_gathering_v0.parallel_env()`` as MOMAland's ``momaland/learn
 places (:class:`~sb3_sfgpi.common.parallel_wrappers.SwapTerminationsTruncations`: MOMAland 0.2 returns them swapped,
 so that a learner would bootstrap past the end of the items and not at the time limit), for both methods.
 
-* **Ours**: :class:`~sb3_sfgpi.masfols.MASFOLS` with a learner per agent, the deep preset's (one weight-conditioned
-  ψ(s, a, w) each, :data:`~sb3_sfgpi.cli.gym_domains.MLP_LEARNER`, :data:`~sb3_sfgpi.cli.gym_domains.MLP_RUN`) at
-  MOMAland's γ 0.99; one shared Π over both agents, each agent seeing itself as the first
-  (:class:`~sb3_sfgpi.SelfFirstAgentIds`: the env marks agents by their index, so that without it a member learned by
-  one agent misreads the other's observations).
+* **Ours**: :class:`~sb3_sfgpi.masfols.MASFOLS` with one learner shared by both agents (``sharing="shared"``: one
+  weight an iteration, trained on both agents' transitions), the deep preset's (one weight-conditioned ψ(s, a, w),
+  :data:`~sb3_sfgpi.cli.gym_domains.MLP_LEARNER`, :data:`~sb3_sfgpi.cli.gym_domains.MLP_RUN`) at MOMAland's γ 0.99;
+  one Π over both agents, each seeing itself as the first (:class:`~sb3_sfgpi.SelfFirstAgentIds`: the env marks
+  agents by their index). A member learned by one agent's own learner misleads the other agent's GPI where that
+  learner never went (the agents start in opposite corners); a shared learner's members have seen both.
 * **The peer** (where ``morl_baselines`` imports): morl-baselines' ``GPILS`` with the script's settings
   (:data:`PEER_SETTINGS`) on MOMAland's ``CentraliseAgent`` of the same env (one agent choosing the joint action from
   the map), 15 × 10,000 steps; its gradient updates per env step are the script's 10 unless ``peer_updates`` says.
@@ -116,20 +117,22 @@ def run(
     weights = random_weights(len(ITEMS), N_TEST_WEIGHTS, rng=0)
     ceiling = f"every item: {float(np.mean(weights @ ITEMS)):.4f} undiscounted"
     ours = [_train_ours(weights, seed, steps, iterations, runs) for seed in seeds]
-    case = f"{ENV_ID} (2 agents, d=3), MA-SFOLS + GPI, {iterations} × {steps:,} joint steps"
+    case = f"{ENV_ID} (2 agents, d=3), MA-SFOLS + GPI, one learner shared, {iterations} × {steps:,} joint steps"
     rows = [summary_row(NAME, case, ours, None, ceiling, seeds)]
     rows += [seed_row(NAME, f"{ENV_ID} seed {seed}", o, None) for seed, o in zip(seeds, ours, strict=True)]
     return rows + _peer_rows(weights, seeds, steps, iterations, peer_updates, ceiling, runs)
 
 
 def _train_ours(weights: np.ndarray, seed: int, steps: int, iterations: int, runs: Path | None) -> Outcome:
-    """One MA-SFOLS run with the deep preset at γ 0.99 (in ``runs`` where given); its team's EU over the final Π."""
+    """One MA-SFOLS run with the deep preset at γ 0.99, its learner shared by the agents (in ``runs`` where given); its
+    team's EU over the final Π."""
     learner = {key: value for key, value in MLP_LEARNER.items() if key != "policy"} | {"gamma": GAMMA}
 
     def build(run_dir: Path | None) -> MASFOLS:
         return MASFOLS(
             make_agents_env(), policy=MLP_LEARNER["policy"], steps_per_iteration=steps, learner_kwargs=learner,
             value_episodes=5, **MLP_RUN, test_weights=weights, eval_episodes=1, seed=seed, run_dir=run_dir, verbose=1,
+            sharing="shared",
         )  # fmt: skip
 
     masfols = learned(build, make_agents_env, runs, f"item-gathering-s{seed}", iterations)
