@@ -147,9 +147,10 @@ class SelfFirstAgentIds(BaseParallelWrapper):
     """
     Each agent's observation as the first agent would see it, for envs that mark agents by their index: MOMAland's
     item gathering hands each agent ``(its id, the map)``, agent ``i`` being ``-(i + 1)`` in both. Wrapped, an agent
-    sees itself as ``-1`` and the others as ``-2, -3, …`` in their order, so that what one agent learned serves
-    another (one Π over homogeneous agents, MA-SFOLS's); unwrapped, a member learned by agent 0 reads agent 1's
-    observations as if agent 1 were the other agent. Spaces, rewards and the rest pass through:
+    sees itself as ``-1`` and the others as ``-2, -3, …`` in their order, so that a policy can act for any agent (one
+    Π over homogeneous agents, MA-SFOLS's; a learner shared by the agents, ``sharing="shared"``, then learns from all
+    of them); unwrapped, a member learned by agent 0 reads agent 1's observations as if agent 1 were the other agent.
+    Spaces, rewards and the rest pass through:
     ``MASFOLS(SelfFirstAgentIds(SwapTerminationsTruncations(moitem_gathering_v0.parallel_env())), ...)``.
 
     :raises ValueError: an agent whose observation space is not ``Tuple(Discrete(n, start=-n), Box)``, ``n`` the
