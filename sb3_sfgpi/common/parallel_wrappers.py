@@ -25,7 +25,26 @@ def needs_flattening(env: Any) -> bool:
     return any(not isinstance(env.observation_space(agent), FLAT_SPACES) for agent in env.possible_agents)
 
 
-class FlattenObservations(BaseParallelWrapper):
+class _ObservationWrapper(BaseParallelWrapper):
+    """A ParallelEnv wrapper that changes each agent's observation (:meth:`_observation`) at reset and at every step,
+    and nothing else."""
+
+    def _observation(self, agent: str, observation: Any) -> Any:
+        raise NotImplementedError
+
+    def _observations(self, observations: dict[str, Any]) -> dict[str, Any]:
+        return {agent: self._observation(agent, obs) for agent, obs in observations.items()}
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+        observations, infos = self.env.reset(seed=seed, options=options)
+        return self._observations(observations), infos
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
+        observations, rewards, terminations, truncations, infos = self.env.step(actions)
+        return self._observations(observations), rewards, terminations, truncations, infos
+
+
+class FlattenObservations(_ObservationWrapper):
     """
     Every agent's observations flattened into one ``Box`` (gymnasium's ``flatten_space`` and ``flatten``: discrete
     parts one-hot, the others concatenated), e.g. MOMAland's item gathering, whose observations are
@@ -41,16 +60,8 @@ class FlattenObservations(BaseParallelWrapper):
     def observation_space(self, agent: str) -> spaces.Box:
         return self._flat[agent]
 
-    def _flatten(self, observations: dict[str, Any]) -> dict[str, Any]:
-        return {agent: spaces.flatten(self._spaces[agent], obs) for agent, obs in observations.items()}
-
-    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
-        observations, infos = self.env.reset(seed=seed, options=options)
-        return self._flatten(observations), infos
-
-    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
-        observations, rewards, terminations, truncations, infos = self.env.step(actions)
-        return self._flatten(observations), rewards, terminations, truncations, infos
+    def _observation(self, agent: str, observation: Any) -> Any:
+        return spaces.flatten(self._spaces[agent], observation)
 
 
 def as_parallel_env(env: Any) -> Any:
@@ -143,7 +154,7 @@ class SwapTerminationsTruncations(BaseParallelWrapper):
         return observations, rewards, truncations, terminations, infos
 
 
-class SelfFirstAgentIds(BaseParallelWrapper):
+class SelfFirstAgentIds(_ObservationWrapper):
     """
     Each agent's observation as the first agent would see it, for envs that mark agents by their index: MOMAland's
     item gathering hands each agent ``(its id, the map)``, agent ``i`` being ``-(i + 1)`` in both. Wrapped, an agent
@@ -171,22 +182,12 @@ class SelfFirstAgentIds(BaseParallelWrapper):
                     f"SelfFirstAgentIds takes (agent id, map) observations with ids -1 to -{n}; {agent!r} has {space}"
                 )
 
-    @staticmethod
-    def _self_first(observation: tuple[Any, np.ndarray]) -> tuple[int, np.ndarray]:
+    def _observation(self, agent: str, observation: tuple[Any, np.ndarray]) -> tuple[int, np.ndarray]:
         own, board = -int(observation[0]), np.asarray(observation[1])
         relabelled = board.copy()
         relabelled[board == -own] = -1
         relabelled[(board < 0) & (board > -own)] -= 1  # the agents before it, one place later
         return -1, relabelled
-
-    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
-        observations, infos = self.env.reset(seed=seed, options=options)
-        return {agent: self._self_first(obs) for agent, obs in observations.items()}, infos
-
-    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
-        observations, rewards, terminations, truncations, infos = self.env.step(actions)
-        relabelled = {agent: self._self_first(obs) for agent, obs in observations.items()}
-        return relabelled, rewards, terminations, truncations, infos
 
 
 def time_limit(env: Any) -> int | None:
