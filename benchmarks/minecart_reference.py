@@ -62,6 +62,10 @@ class Trip:
     actions: tuple[int, ...]
     ore: tuple[float, ...] = ()  # each type's amount on arrival, undiscounted; () for none
 
+    def then(self, action: int, fuel: float, gamma: float) -> Trip:
+        """The trip with ``action`` after it, its ``fuel`` discounted by the step it comes at."""
+        return Trip(self.fuel + gamma ** len(self.actions) * fuel, self.actions + (action,))
+
     def value(self, gamma: float, n_ores: int) -> np.ndarray:
         """The trip's discounted return: each ore on its last step, then the fuel."""
         ore = np.zeros(n_ores) if not self.ore else np.array(self.ore) * gamma ** (len(self.actions) - 1)
@@ -92,11 +96,11 @@ def cheapest_empty_trip(env_id: str, gamma: float, max_steps: int = 50) -> Trip:
         for state, trip in frontier.items():
             for action in MOVES:
                 after, fuel, home = _move(minecart, state, action)
-                extended = Trip(trip.fuel + gamma**step * fuel, trip.actions + (action,))
+                extended = trip.then(action, fuel, gamma)
                 if home:
                     best = max(best, extended, key=lambda candidate: candidate.fuel)
-                elif after not in reached or reached[after].fuel < extended.fuel:
-                    reached[after] = extended
+                else:
+                    _keep_cheaper(reached, after, extended)
         frontier = {
             state: trip for state, trip in reached.items() if trip.fuel + idle * gamma ** (step + 1) > best.fuel
         }
@@ -120,6 +124,7 @@ def ore_trips(
     """
     minecart = _made(env_id)
     base, trips = _state(minecart.cart), []
+    _, mining_fuel, _ = _move(minecart, (0.5, 0.5, 1.0, 0.0, True), ACT_MINE)  # read off a moving cart: no draw
     for mine in minecart.mines:
         stops = _stops(minecart, base, mine.pos, gamma, outbound_steps)
         per_action = np.asarray(mine.distribution_means()) * minecart.frame_skip
@@ -127,7 +132,7 @@ def ore_trips(
             ore = per_action * mining * min(1.0, minecart.capacity / (per_action.sum() * mining))
             front: list[Trip] = []
             for stop, state in stops:
-                mined = _mine(minecart, stop, mining, gamma)
+                mined = _mined(stop, mining, mining_fuel, gamma)
                 if not _dominated(front, *_bound_home(minecart, state, len(mined.actions), mined.fuel, gamma)):
                     front = _drives_home(minecart, state, mined, gamma, return_steps, front)
             trips += [Trip(trip.fuel, trip.actions, tuple(ore.tolist())) for trip in front]
@@ -158,25 +163,21 @@ def _stops(
         for state, trip in frontier.items():
             for action in MOVES:
                 after, fuel, home = _move(minecart, state, action)
-                extended, gap = Trip(trip.fuel + gamma**step * fuel, trip.actions + (action,)), _gap(after, mine, _MINE)
+                extended, gap = trip.then(action, fuel, gamma), _gap(after, mine, _MINE)
                 if home:
                     continue
                 if action == ACT_BRAKE and gap <= 0:
                     stops.append((extended, after))
-                elif _fewest_steps(after[2], gap, minecart.frame_skip) <= max_steps - step - 2 and (
-                    after not in reached or reached[after].fuel < extended.fuel
-                ):  # it can still move within reach and brake there
-                    reached[after] = extended
+                elif _fewest_steps(after[2], gap, minecart.frame_skip) <= max_steps - step - 2:
+                    _keep_cheaper(reached, after, extended)  # it can still move within reach and brake there
         frontier = reached
     return sorted(stops, key=lambda stop: (len(stop[0].actions), -stop[0].fuel))
 
 
-def _mine(minecart: Any, trip: Trip, mining: int, gamma: float) -> Trip:
-    """``trip`` followed by ``mining`` mining actions, each at the fuel the env charges for one: read from a step of
-    a moving cart, which mines nothing (so nothing is drawn from a mine's generator)."""
-    _, fuel, _ = _move(minecart, (0.5, 0.5, 1.0, 0.0, True), ACT_MINE)
+def _mined(trip: Trip, mining: int, fuel: float, gamma: float) -> Trip:
+    """``trip`` followed by ``mining`` mining actions of ``fuel`` each."""
     for _ in range(mining):
-        trip = Trip(trip.fuel + gamma ** len(trip.actions) * fuel, trip.actions + (ACT_MINE,))
+        trip = trip.then(ACT_MINE, fuel, gamma)
     return trip
 
 
@@ -192,14 +193,13 @@ def _drives_home(
             step = len(so_far.actions)
             for action in MOVES:
                 after, fuel, home = _move(minecart, state, action)
-                extended = Trip(so_far.fuel + gamma**step * fuel, so_far.actions + (action,))
+                extended = so_far.then(action, fuel, gamma)
                 if home:
                     front = _with(front, extended)
                     continue
                 steps, most_fuel = _bound_home(minecart, after, step + 1, extended.fuel, gamma)
                 if steps <= len(trip.actions) + max_steps and not _dominated(front, steps, most_fuel):
-                    if after not in reached or reached[after].fuel < extended.fuel:
-                        reached[after] = extended
+                    _keep_cheaper(reached, after, extended)
         frontier = reached
     return front
 
@@ -213,6 +213,13 @@ def _bound_home(minecart: Any, state: CartState, step: int, fuel: float, gamma: 
     idle = FUEL_IDLE * minecart.frame_skip * sum(gamma ** (step + j) for j in range(n))
     setting_off = FUEL_ACC * minecart.frame_skip * gamma ** (step + n - 1) if state[2] < EPS_SPEED else 0.0
     return step + n, fuel + idle + setting_off
+
+
+def _keep_cheaper(reached: dict[CartState, Trip], state: CartState, trip: Trip) -> None:
+    """``trip`` in ``reached`` at ``state`` unless a trip there already has as much fuel left (what follows costs
+    both the same)."""
+    if state not in reached or reached[state].fuel < trip.fuel:
+        reached[state] = trip
 
 
 def _dominated(front: list[Trip], steps: int, fuel: float) -> bool:
