@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import subprocess
@@ -17,12 +18,15 @@ import pytest
 import torch as th
 from conftest import FEW_VALIDATION, FIG1_TABULAR_KWARGS, train_tiny_run
 from momdp import Fig1MOMDP
+from stable_baselines3.common.callbacks import BaseCallback
 from tensorboard_scalars import scalar_steps
 
 from sb3_sfgpi.cli import main, parse_args
+from sb3_sfgpi.cli.interrupts import Interrupts
 from sb3_sfgpi.cli.train import _stopped_message
 from sb3_sfgpi.common.weights import validate_weights
 from sb3_sfgpi.gpi import GPIPolicy
+from sb3_sfgpi.masfols import MASFOLS
 from sb3_sfgpi.run_directory import RunDirectory
 from sb3_sfgpi.run_settings import RunSettings
 from sb3_sfgpi.sfdqn import SFDQN
@@ -172,6 +176,73 @@ def test_sigterm_stops_training_as_ctrl_c_does(tmp_path):
     assert len(stderr.strip().splitlines()) == 1
     assert "(interrupted by SIGTERM)" in stderr and "is intact: continue with" in stderr
     assert f"--out {out} --resume --iterations 1000`" in stderr
+
+
+class _Finalized:
+    """An object whose finalizer receives a signal: Python reports an exception raised there as ignored, and goes on."""
+
+    def __init__(self, signal_number: int) -> None:
+        self.signal_number = signal_number
+
+    def __del__(self) -> None:
+        os.kill(os.getpid(), self.signal_number)
+
+
+class _SignalInAFinalizerAt(BaseCallback):
+    def __init__(self, step: int, signal_number: int) -> None:
+        super().__init__()
+        self.step, self.signal_number = step, signal_number
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps == self.step:
+            _Finalized(self.signal_number)  # collected at once
+        return True
+
+
+def _four_room(out: Path) -> list[str]:
+    budget = ["--iterations", "5", "--steps-per-iteration", "200", "--set", "n_test_weights=2", *FEW_VALIDATION]
+    return ["train", "four-room", "--out", str(out), "--no-progress", *budget]
+
+
+@pytest.mark.parametrize(
+    ("signal_number", "reason"), [(signal.SIGTERM, "(interrupted by SIGTERM)"), (signal.SIGINT, "(interrupted)")]
+)
+def test_an_interrupt_lost_in_a_finalizer_stops_training_at_the_next_step(
+    tmp_path, monkeypatch, capfd, signal_number, reason
+):
+    learn = MASFOLS.learn
+    at = _SignalInAFinalizerAt(250, signal_number)
+    monkeypatch.setattr(MASFOLS, "learn", lambda self, n, callback, **kw: learn(self, n, [callback, at], **kw))
+    assert main(_four_room(tmp_path / "run")) == 1
+    err = capfd.readouterr().err
+    assert err.count("\n") == 1 and "Exception ignored" not in err and "Traceback" not in err
+    assert f"training stopped in iteration 2 {reason}" in err
+    assert RunDirectory(tmp_path / "run").read_checkpoint()["iteration"] == 1
+
+
+def test_an_error_an_interrupt_turned_into_is_reported_as_the_interrupt(tmp_path, monkeypatch, capsys):
+    """numba turns an interrupt that lands while it unboxes a compiled call's arguments into a TypeError (CI of 89)."""
+
+    def learn(self, *args, **kwargs):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+        except KeyboardInterrupt:
+            raise TypeError("_get_wrapper_address() missing 1 required positional argument: 'sig'") from None
+
+    monkeypatch.setattr(MASFOLS, "learn", learn)
+    assert main(_four_room(tmp_path / "run")) == 1
+    assert "training stopped in iteration 1 (interrupted by SIGTERM)" in capsys.readouterr().err
+
+
+def test_a_sigint_that_a_background_job_ignores_stays_ignored_in_training():
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with Interrupts().caught():
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+            assert signal.getsignal(signal.SIGTERM) not in (signal.SIG_DFL, signal.SIG_IGN)
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_path):

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import argparse
 import functools
-import signal
 import sys
-from collections.abc import Iterator
-from contextlib import contextmanager, suppress
+from contextlib import suppress
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -89,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
 
     import torch as th
 
+    from sb3_sfgpi.cli.interrupts import Interrupts
+
     th.set_num_threads(1)  # small networks: more threads only contend with the simulator and the evaluation workers
     if not args.resume:  # a folder that is not a run of these settings is refused untouched
         run_dir.check_new_run({key: config[key] for key in ("domain", "algorithm", "seed", "weights", "env_kwargs")})
@@ -103,11 +103,17 @@ def run(args: argparse.Namespace) -> int:
                 run_dir.path.rmdir()
         raise
     print(_header(args, preset, config, run_dir), flush=True)
+    interrupts = Interrupts()
     try:
-        with _sigterm_as_interrupt():
-            model.learn(config["iterations"], progress_bar=not args.no_progress and sys.stderr.isatty())
-    except (RuntimeError, OSError, KeyboardInterrupt) as error:  # a dead simulator, a full disk, Ctrl-C, SIGTERM
-        raise TrainingStopped(_stopped_message(args, run_dir, model, error)) from error
+        with interrupts.caught():
+            model.learn(config["iterations"], interrupts, progress_bar=not args.no_progress and sys.stderr.isatty())
+            if interrupts.received is not None:  # its KeyboardInterrupt was lost: the training stopped at a step
+                raise interrupts.received
+    except (Exception, KeyboardInterrupt) as error:
+        cause = interrupts.received or error  # an interrupt, whatever it became where it landed
+        if not isinstance(cause, (RuntimeError, OSError, KeyboardInterrupt)):  # a dead simulator, a full disk
+            raise
+        raise TrainingStopped(_stopped_message(args, run_dir, model, cause)) from error
     finally:
         model.close()
         lock.release()
@@ -125,24 +131,6 @@ def _header(args: argparse.Namespace, preset: DomainPreset, config: dict[str, An
         f"{config['steps_per_iteration']:,} steps, objectives: {', '.join(objectives)} -> {run_dir}"
         + (" (resumed)" if args.resume else "")
     )
-
-
-@contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM (``kill``, a batch scheduler) stops training as Ctrl-C does: the same message, the same resume."""
-
-    def interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt("SIGTERM")
-
-    try:
-        previous = signal.signal(signal.SIGTERM, interrupt)
-    except ValueError:  # not the main thread: signals stay as they are
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _run_config(args: argparse.Namespace, preset: DomainPreset) -> tuple[dict[str, Any], dict[str, Any]]:
