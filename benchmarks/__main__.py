@@ -33,6 +33,7 @@ import traceback
 from pathlib import Path
 
 from benchmarks._common import Row, single_thread_torch
+from sb3_sfgpi.common.cpu_arithmetic import mkl_code_path
 from sb3_sfgpi.common.software import DISTRIBUTIONS, cpu_model, software_versions
 
 BENCHMARKS = {
@@ -79,11 +80,12 @@ def _versions() -> str:
 
 def header(argv: list[str]) -> str:
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "?"
+    gpu = _gpu()  # imports torch, whose MKL the machine's line names
     return "\n".join(
         [
             f"- Machine: {cpu_model()}, {os.cpu_count()} logical cores ({platform.system()} {platform.release()}), "
-            f"load average at start {load}; torch limited to 1 thread",
-            f"- GPU: {_gpu()}",
+            f"load average at start {load}; torch limited to 1 thread, its MKL code path {mkl_code_path() or 'none'}",
+            f"- GPU: {gpu}",
             f"- Versions: {_versions()}",
             f"- Date: {datetime.date.today().isoformat()}",
             f"- Command: `python -m benchmarks{' ' + ' '.join(argv) if argv else ''}`",

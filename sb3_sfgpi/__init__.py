@@ -1,13 +1,18 @@
 """sb3-sfgpi: successor features, OLS and GPI for Stable-Baselines3.
 
 The public names are imported when first used (PEP 562): ``import sb3_sfgpi`` and the command line's parser import
-neither torch nor Stable-Baselines3; ``from sb3_sfgpi import SFDQN`` imports what SFDQN needs.
+neither torch nor Stable-Baselines3; ``from sb3_sfgpi import SFDQN`` imports what SFDQN needs. Importing the package
+asks torch's MKL for one code path on every x86 CPU (:mod:`sb3_sfgpi.common.cpu_arithmetic`).
 """
 
 from __future__ import annotations
 
 import importlib
 from typing import TYPE_CHECKING, Any
+
+from sb3_sfgpi.common.cpu_arithmetic import pin_mkl_code_path
+
+pin_mkl_code_path()  # before anything of the package multiplies matrices: MKL reads it once, at its first call
 
 if TYPE_CHECKING:  # type checkers and Sphinx see the names as imported
     from sb3_sfgpi.admission import Admission

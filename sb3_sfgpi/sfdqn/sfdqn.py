@@ -14,6 +14,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
+from sb3_sfgpi.common.cpu_arithmetic import warn_unless_pinned
 from sb3_sfgpi.common.device import resolve_device
 from sb3_sfgpi.common.mo_off_policy import MOOffPolicyAlgorithm
 from sb3_sfgpi.common.observations import numeric_array
@@ -180,6 +181,8 @@ class SFDQN(MOOffPolicyAlgorithm):
         prioritised = isinstance(self.replay_buffer, PrioritizedMOReplayBuffer)
         if prioritised and isinstance(self.policy, TabularPolicy):
             raise ValueError("prioritised replay is for network policies: a table learns every sampled row exactly")
+        if self.device.type == "cpu" and not isinstance(self.policy, TabularPolicy):
+            warn_unless_pinned()
         fraction = self.exploration_fraction if self.exploration_steps is None else 1.0  # of exploration_steps
         self.exploration_schedule = LinearSchedule(self.exploration_initial_eps, self.exploration_final_eps, fraction)
         self.set_weights(self._weights)

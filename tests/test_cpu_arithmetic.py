@@ -1,0 +1,65 @@
+"""A seeded deep learner gives the same numbers on AVX-512 and AVX2 CPUs: torch's MKL runs one code path on both."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+import torch as th
+
+from sb3_sfgpi.common.cpu_arithmetic import MKL_CODE_PATH, mkl_code_path
+from sb3_sfgpi.common.software import software_versions
+
+pytestmark = pytest.mark.skipif(mkl_code_path() is None, reason="torch has no MKL here (ARM, macOS)")
+
+#: A seeded SFDQN with MLP SFs, 400 steps of deep-sea-treasure, and the hash of its parameters.
+TRAIN = textwrap.dedent(
+    """
+    import hashlib
+    import mo_gymnasium
+    import torch
+    from sb3_sfgpi import SFDQN
+
+    torch.set_num_threads({threads})
+    env = mo_gymnasium.make("deep-sea-treasure-v0")
+    model = SFDQN("MlpPolicy", env, learning_starts=50, batch_size=64, seed=0,
+                  policy_kwargs={{"net_arch": [96, 160]}}, weights=[0.3, 0.7])
+    model.learn(400)
+    digest = hashlib.sha256()
+    for value in model.policy.state_dict().values():
+        digest.update(value.numpy().tobytes())
+    print(digest.hexdigest())
+    """
+)
+
+
+def _run(code: str, **environment: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, **environment}
+    env.pop("MKL_CBWR", None)  # as a user's shell has it: the package's import sets it
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+
+
+def test_the_package_pins_mkl_to_one_code_path_and_records_it():
+    assert os.environ["MKL_CBWR"] == MKL_CODE_PATH
+    th.ones(2, 2) @ th.ones(2, 2)
+    assert mkl_code_path() == MKL_CODE_PATH
+    assert software_versions()["mkl"] == MKL_CODE_PATH
+
+
+def test_a_seeded_deep_learner_trains_the_same_bits_on_avx2_and_on_the_cpus_own_instructions():
+    # MKL_ENABLE_INSTRUCTIONS=AVX2 makes MKL see an AVX2 CPU; on an AVX-512 machine the unpinned kernels gave these
+    # two runs different parameters from the first update on
+    here = _run(TRAIN.format(threads=1)).stdout
+    avx2 = _run(TRAIN.format(threads=1), MKL_ENABLE_INSTRUCTIONS="AVX2").stdout
+    two_threads = _run(TRAIN.format(threads=2)).stdout
+    assert len(here.strip()) == 64
+    assert here == avx2 == two_threads
+
+
+def test_a_deep_learner_warns_when_torch_multiplied_matrices_before_the_package_was_imported():
+    build = TRAIN.format(threads=1).replace("model.learn(400)", "")
+    assert f"not {MKL_CODE_PATH}" in _run("import torch; torch.ones(2, 2) @ torch.ones(2, 2)\n" + build).stderr
+    assert "not AVX2" not in _run(build).stderr
