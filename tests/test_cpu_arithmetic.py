@@ -50,10 +50,11 @@ def test_the_package_pins_mkl_to_one_code_path_and_records_it():
 
 
 def test_a_seeded_deep_learner_trains_the_same_bits_on_avx2_and_on_the_cpus_own_instructions():
-    # MKL_ENABLE_INSTRUCTIONS=AVX2 makes MKL see an AVX2 CPU; on an AVX-512 machine the unpinned kernels gave these
-    # two runs different parameters from the first update on
+    # MKL, torch's own kernels and numpy's OpenBLAS made to see an AVX2 CPU; on an AVX-512 machine MKL's unpinned
+    # kernels gave these two runs different parameters from the first update on
     here = _run(TRAIN.format(threads=1)).stdout
-    avx2 = _run(TRAIN.format(threads=1), MKL_ENABLE_INSTRUCTIONS="AVX2").stdout
+    avx2_cpu = {"MKL_ENABLE_INSTRUCTIONS": "AVX2", "ATEN_CPU_CAPABILITY": "avx2", "OPENBLAS_CORETYPE": "Haswell"}
+    avx2 = _run(TRAIN.format(threads=1), **avx2_cpu).stdout
     two_threads = _run(TRAIN.format(threads=2)).stdout
     assert len(here.strip()) == 64
     assert here == avx2 == two_threads
