@@ -44,12 +44,11 @@ def mkl_code_path() -> str | None:
         macOS, a build that does not export MKL's service functions)
     """
     torch = sys.modules.get("torch")
-    library = Path(torch.__file__).parent / "lib" / "libtorch_cpu.so" if torch is not None else None
-    if library is None or not library.exists():
+    if torch is None or torch.__file__ is None:
         return None
     try:
-        get = ctypes.CDLL(str(library)).mkl_serv_cbwr_get
-    except (OSError, AttributeError):
+        get = ctypes.CDLL(str(Path(torch.__file__).parent / "lib" / "libtorch_cpu.so")).mkl_serv_cbwr_get
+    except (OSError, AttributeError):  # no such library (macOS, Windows), or one without MKL (ARM)
         return None
     get.restype, get.argtypes = ctypes.c_int, [ctypes.c_int]
     mode = get(_ALL)
