@@ -1,11 +1,16 @@
-"""One code path for torch's matrix products on every x86 CPU, so that a seeded deep run gives the same numbers.
+"""One code path for torch's matrix products on every Intel CPU, so that a seeded deep run gives the same numbers.
 
 Torch's x86 builds hand float matrix products to Intel's MKL, which picks its kernels at its first call from the CPU's
 instruction set. AVX-512 and AVX2 kernels add in different orders, so a deep learner's seeded run left the last bit
 at its first update and went elsewhere from there: 1,500 steps of the deep preset on minecart-deterministic ended at
 −0.3116 on an AVX-512 Xeon and at −0.8636 with MKL held to its AVX2 kernels on the same machine. MKL's conditional
 numerical reproducibility (the ``MKL_CBWR`` environment variable) fixes the code path: :data:`MKL_CODE_PATH` runs on
-every x86 CPU with AVX2 (Intel's since 2013, AMD's since 2015) and gives the same bits whatever the number of threads.
+every Intel CPU with AVX2 (since 2013) and gives the same bits whatever the number of threads.
+
+MKL takes Intel's named code paths on Intel CPUs only: on an AMD CPU it keeps its automatic choice, in the strict mode
+asked for (``AUTO,STRICT``): a seeded run gives the same bits on that CPU for any number of threads, but not
+necessarily an Intel CPU's. ``MKL_CBWR=COMPATIBLE`` (SSE2 kernels) gives the same bits on both, at about twice the
+time of a small network's update; the package does not ask for it, and ``software.json`` records the path a run took.
 
 MKL reads the variable once, at its first call, so ``import sb3_sfgpi`` sets it (where the user has not) before
 anything of the package runs; a process whose torch multiplied matrices before that keeps the CPU's own kernels, and
@@ -57,9 +62,13 @@ def mkl_code_path() -> str | None:
 
 
 def warn_unless_pinned() -> None:
-    """Warn when MKL runs the CPU's own kernels though :data:`MKL_CODE_PATH` was asked for: it ran before the ask."""
+    """
+    Warn when MKL runs the CPU's own kernels though :data:`MKL_CODE_PATH` was asked for: it ran before the ask.
+
+    Any strict path is what the ask gave (an AMD CPU's is ``AUTO,STRICT``); without ``STRICT`` MKL never read it.
+    """
     path = mkl_code_path()
-    if path is not None and path != MKL_CODE_PATH and os.environ.get("MKL_CBWR") == MKL_CODE_PATH:
+    if path is not None and not path.endswith(",STRICT") and os.environ.get("MKL_CBWR") == MKL_CODE_PATH:
         warnings.warn(
             f"torch's MKL runs {path} kernels, not {MKL_CODE_PATH}: torch multiplied matrices before sb3_sfgpi was "
             "imported, so this deep run's numbers are this CPU's; import sb3_sfgpi first, or set "
