@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
-import contextlib
 import os
-import platform
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import pytest
 import torch as th
 
 from sb3_sfgpi.common.cpu_arithmetic import MKL_CODE_PATH, mkl_code_path
-from sb3_sfgpi.common.software import software_versions
+from sb3_sfgpi.common.software import cpu_model, software_versions
 
 pytestmark = pytest.mark.skipif(mkl_code_path() is None, reason="torch has no MKL here (ARM, macOS)")
 
@@ -45,17 +42,11 @@ def _run(code: str, **environment: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
 
 
-def _intel_cpu() -> bool:
-    with contextlib.suppress(OSError):
-        return "GenuineIntel" in Path("/proc/cpuinfo").read_text()
-    return "Intel" in platform.processor()
-
-
 def test_the_package_pins_mkl_to_one_code_path_and_records_it():
     # MKL takes Intel's named code paths on Intel CPUs only; elsewhere it keeps its own choice, in strict mode
     assert os.environ["MKL_CBWR"] == MKL_CODE_PATH
     th.ones(2, 2) @ th.ones(2, 2)
-    expected = MKL_CODE_PATH if _intel_cpu() else "AUTO,STRICT"
+    expected = MKL_CODE_PATH if "Intel" in cpu_model() else "AUTO,STRICT"
     assert mkl_code_path() == expected
     assert software_versions()["mkl"] == expected
 
