@@ -51,6 +51,19 @@ def test_the_package_pins_mkl_to_one_code_path_and_records_it():
     assert software_versions()["mkl"] == expected
 
 
+def test_the_package_keeps_a_code_path_the_user_chose():
+    # MKL_CBWR=COMPATIBLE: the same bits on Intel and AMD CPUs, at more time per update (docs, deep_fronts)
+    code = (
+        "import warnings; warnings.simplefilter('error')\n"
+        "import sb3_sfgpi, torch\n"
+        "from sb3_sfgpi.common.cpu_arithmetic import mkl_code_path, warn_unless_pinned\n"
+        "torch.ones(2, 2) @ torch.ones(2, 2); warn_unless_pinned(); print(mkl_code_path())"
+    )
+    env = {**os.environ, "MKL_CBWR": "COMPATIBLE"}
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert result.stdout.strip() == "COMPATIBLE"
+
+
 def test_a_seeded_deep_learner_trains_the_same_bits_on_avx2_and_on_the_cpus_own_instructions():
     # MKL, torch's own kernels and numpy's OpenBLAS made to see an AVX2 CPU; on an AVX-512 machine MKL's unpinned
     # kernels gave these two runs different parameters from the first update on

@@ -8,9 +8,10 @@ numerical reproducibility (the ``MKL_CBWR`` environment variable) fixes the code
 every Intel CPU with AVX2 (since 2013) and gives the same bits whatever the number of threads.
 
 MKL takes Intel's named code paths on Intel CPUs only: on an AMD CPU it keeps its automatic choice, in the strict mode
-asked for (``AUTO,STRICT``): a seeded run gives the same bits on that CPU for any number of threads, but not
-necessarily an Intel CPU's. ``MKL_CBWR=COMPATIBLE`` (SSE2 kernels) gives the same bits on both, at about twice the
-time of a small network's update; the package does not ask for it, and ``software.json`` records the path a run took.
+asked for (``AUTO,STRICT``): a seeded run gives the same bits on that CPU for any number of threads, and other numbers
+than an Intel CPU's. ``MKL_CBWR=COMPATIBLE`` (SSE2 kernels, the same bits on both as MKL documents it) costs about
+1.3 times the CPU time of a deep run; the package does not ask for it but keeps it where the user sets it, and
+``software.json`` records the path a run took.
 
 MKL reads the variable once, at its first call, so ``import sb3_sfgpi`` sets it (where the user has not) before
 anything of the package runs; a process whose torch multiplied matrices before that keeps the CPU's own kernels, and
