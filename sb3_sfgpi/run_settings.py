@@ -25,7 +25,7 @@ VALUE_MODES = ("joint", "shared")
 #: What conditioned learners act and train for in each episode (see :mod:`~sb3_sfgpi.episode_weights`).
 EPISODE_WEIGHTS = ("own", "support")
 #: Settings added after runs were first written: a ``run.json`` without one is of a run that had its default.
-ADDED_LATER = ("episode_weights", "rebind_support")
+ADDED_LATER = ("episode_weights", "rebind_support", "snapshots")
 
 
 @dataclass(frozen=True)
@@ -58,6 +58,7 @@ class RunSettings:
     pool_replay: bool = False
     episode_weights: str = EPISODE_WEIGHTS[0]
     rebind_support: bool = False
+    snapshots: int = 0
 
     @classmethod
     def names(cls) -> tuple[str, ...]:

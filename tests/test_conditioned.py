@@ -295,3 +295,54 @@ def test_rebinding_needs_conditioned_learners_and_validation_weights():
         _masfols(rebind_support=True)
     with pytest.raises(ValueError, match="rebind_support"):
         MASFOLS(Fig1MOMDP(one_hot=True), policy="TabularPolicy", validation_weights=4, rebind_support=True)
+    with pytest.raises(ValueError, match="snapshots"):
+        _masfols(snapshots=2)
+    with pytest.raises(ValueError, match="snapshots"):
+        MASFOLS(Fig1MOMDP(one_hot=True), policy="TabularPolicy", validation_weights=4, snapshots=2)
+    with pytest.raises(ValueError, match="snapshots must be 0, or positive"):
+        _masfols(validation_weights=4, snapshots=-1)
+
+
+def test_snapshots_offer_copies_of_the_network_taken_at_even_points_and_validation_decides(monkeypatch, capsys):
+    """With ``snapshots=2`` every iteration of 300 steps copies the learner's network after its 100th and 200th step
+    and offers both, after its own policy, bound to the iteration's weights: copies, which later training leaves as
+    they were; the offers that validation admits join, each one it leaves out is named."""
+    from sb3_sfgpi import admission, callbacks
+
+    offered, taken = [], []
+    admit, take = admission.Admission.admit, callbacks.OLSCallback._take_snapshots
+
+    def spied_admit(self, record, candidates, iteration):
+        offered.append([(c.learner, c.weights) for c in candidates])
+        return admit(self, record, candidates, iteration)
+
+    def spied_take(self):
+        before = len(self._snapshots)
+        take(self)
+        if len(self._snapshots) > before:
+            network = self._snapshots[-1][1]
+            taken.append((self.model.num_timesteps, {k: v.clone() for k, v in network.state_dict().items()}))
+
+    monkeypatch.setattr(admission.Admission, "admit", spied_admit)
+    monkeypatch.setattr(callbacks.OLSCallback, "_take_snapshots", spied_take)
+    model = _masfols(validation_weights=8, snapshots=2, verbose=1)
+    model.learn(max_iterations=2)
+    (learner,) = model.runner.learners.values()
+    assert [steps for steps, _ in taken] == [100, 200, 400, 500]
+    trained = [np.asarray(row["weights_trained"]["agent_0"]) for row in model.history]
+    for k, candidates in enumerate(offered):
+        assert candidates[0] == (learner, None)
+        copies = candidates[1:]
+        assert len(copies) == 2 and all(c is not learner and np.allclose(w, trained[k]) for c, w in copies)
+        for (network, _), (_, state) in zip(copies, taken[2 * k : 2 * k + 2], strict=True):
+            assert all(th.equal(v, state[key]) for key, v in network.state_dict().items())
+    last = learner.policy.sf_net.state_dict()
+    assert not all(th.equal(v, taken[-1][1][key]) for key, v in last.items() if key != "member_weights")
+    out = capsys.readouterr().out
+    own_left_out, copies_left_out = out.count("agent_0's policy left out"), out.count("agent_0's policy for w = [")
+    assert len(model.callback.record) == 3 * len(offered) - own_left_out - copies_left_out
+    without = _masfols(validation_weights=8)  # the copies change Π, nothing of the learner's training or of OLS
+    without.learn(max_iterations=2)
+    (alone,) = without.runner.learners.values()
+    assert all(th.equal(v, alone.policy.sf_net.state_dict()[k]) for k, v in learner.policy.sf_net.state_dict().items())
+    assert np.array_equal(without.callback.schedule.ols.ccs, model.callback.schedule.ols.ccs)

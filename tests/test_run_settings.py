@@ -37,6 +37,7 @@ RUN_SETTINGS = st.builds(
     pool_replay=st.booleans(),
     episode_weights=st.sampled_from(EPISODE_WEIGHTS),
     rebind_support=st.booleans(),
+    snapshots=counts,
 )
 
 
@@ -55,7 +56,7 @@ def test_a_run_json_without_a_setting_names_it():
         RunSettings.stored(stored, "run.json")
 
 
-@pytest.mark.parametrize("added", [{"episode_weights": "support"}, {"rebind_support": True}])
+@pytest.mark.parametrize("added", [{"episode_weights": "support"}, {"rebind_support": True}, {"snapshots": 3}])
 def test_a_run_json_from_before_a_setting_was_added_has_its_default(added):
     stored = RunSettings(**added).to_json()
     for name in added:
