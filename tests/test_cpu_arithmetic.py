@@ -37,8 +37,8 @@ TRAIN = textwrap.dedent(
 
 
 def _run(code: str, **environment: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, **environment}
-    env.pop("MKL_CBWR", None)  # as a user's shell has it: the package's import sets it
+    # as a user's shell has it: no MKL_CBWR (the package's import sets it) unless ``environment`` names one
+    env = {key: value for key, value in os.environ.items() if key != "MKL_CBWR"} | environment
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
 
 
@@ -59,9 +59,7 @@ def test_the_package_keeps_a_code_path_the_user_chose():
         "from sb3_sfgpi.common.cpu_arithmetic import mkl_code_path, warn_unless_pinned\n"
         "torch.ones(2, 2) @ torch.ones(2, 2); warn_unless_pinned(); print(mkl_code_path())"
     )
-    env = {**os.environ, "MKL_CBWR": "COMPATIBLE"}
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
-    assert result.stdout.strip() == "COMPATIBLE"
+    assert _run(code, MKL_CBWR="COMPATIBLE").stdout.strip() == "COMPATIBLE"
 
 
 def test_a_seeded_deep_learner_trains_the_same_bits_on_avx2_and_on_the_cpus_own_instructions():
