@@ -13,7 +13,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from torch import nn
 
 from sb3_sfgpi.common.seeding import derive_seed
 from sb3_sfgpi.common.weights import format_weights, random_weights
@@ -25,12 +24,10 @@ from sb3_sfgpi.validation import Scored, ValidationScorer
 
 @dataclass(frozen=True)
 class Candidate:
-    """A policy learned in an iteration, with what Π records of it (``learner``: the learner whose network joins as it
-    is now, or a copy of a conditioned learner's network taken earlier in the iteration; ``weights``: those it joins
-    bound to, where a learner conditioned on the weights offers a network for another weight than its own or a copy;
-    None: its own)."""
+    """A policy learned in an iteration, with what Π records of it (``weights``: those it joins bound to, where a
+    learner conditioned on the weights offers its network for another weight than its own; None: its own)."""
 
-    learner: SFDQN | nn.Module
+    learner: SFDQN
     value: np.ndarray
     agent: str
     weights: np.ndarray | None = None

@@ -11,7 +11,6 @@ and what is written where the :class:`~sb3_sfgpi.run_directory.RunDirectory`'s b
 
 from __future__ import annotations
 
-import copy
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -20,7 +19,6 @@ from typing import Any, cast
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
-from torch import nn
 from tqdm.auto import tqdm
 
 from sb3_sfgpi.admission import Admission, Candidate
@@ -34,7 +32,6 @@ from sb3_sfgpi.run_directory import RunDirectory, summary_scalars
 from sb3_sfgpi.run_policy_set import commit_policy_set, load_policy_set, stage_policy_set, staged_digest
 from sb3_sfgpi.run_settings import VALUE_MODES, RunSettings
 from sb3_sfgpi.schedules import AgentWeights, WeightSchedule
-from sb3_sfgpi.sfdqn import SFDQN
 from sb3_sfgpi.sfdqn.training_state import training_state
 from sb3_sfgpi.tabular.network import TabularSFNetwork
 from sb3_sfgpi.tabular.pooling import PooledReplay
@@ -82,9 +79,6 @@ class OLSCallback(BaseCallback):
         :mod:`sb3_sfgpi.tabular.pooling`); the run directory keeps what each iteration added
     :param rebind_support: after every iteration each learner conditioned on the weights also offers Π its latest
         network bound to every earlier weight of OLS's support, for validation to admit (it needs validation weights)
-    :param snapshots: copies of each conditioned learner's network taken at even intervals of every iteration, each
-        offered to Π for the iteration's weights after the iteration's own policy, for validation to admit (it needs
-        validation weights)
     """
 
     model: MultiAgentRunner  # type: ignore[assignment]
@@ -103,7 +97,6 @@ class OLSCallback(BaseCallback):
         verbose: int = 0,
         pooled: PooledReplay | None = None,
         rebind_support: bool = False,
-        snapshots: int = 0,
     ):
         super().__init__(verbose)
         if steps_per_iteration < 1:
@@ -114,11 +107,6 @@ class OLSCallback(BaseCallback):
         if rebind_support and not self.admission.validation_weights:
             raise ValueError("rebind_support offers Π networks for validation to admit: it needs validation weights")
         self.rebind_support = rebind_support
-        if snapshots < 0 or (snapshots and not self.admission.validation_weights):
-            raise ValueError(f"snapshots must be 0, or positive with validation weights, got {snapshots}")
-        self.snapshots = snapshots
-        #: the copies of this iteration's conditioned networks taken so far: (learner name, network)
-        self._snapshots: list[tuple[str, nn.Module]] = []
         if self.admission.validation_weights and evaluation.policies == "own":
             raise ValueError("policy validation scores GPI over the shared Π: not for policies='own' evaluations")
         self.schedule = schedule
@@ -201,17 +189,7 @@ class OLSCallback(BaseCallback):
     def _on_step(self) -> bool:
         if self._iteration_bar is not None:
             self._iteration_bar.update(1)
-        if self.snapshots:
-            self._take_snapshots()
         return True
-
-    def _take_snapshots(self) -> None:
-        """Copy every conditioned learner's network at each of the iteration's ``snapshots`` even points passed."""
-        done = self.model.num_timesteps - self._iteration_start
-        due = min(done * (self.snapshots + 1) // self.steps_per_iteration, self.snapshots)
-        learners = self.model.conditioned_learners
-        while len(self._snapshots) < due * len(learners):
-            self._snapshots += [(name, copy.deepcopy(learner.policy.sf_net)) for name, learner in learners.items()]
 
     def _on_training_end(self) -> None:
         """The rest of the iteration, if it ran all its steps (a callback may have stopped it, as a kill would)."""
@@ -232,7 +210,6 @@ class OLSCallback(BaseCallback):
         ]
         if self.rebind_support:
             candidates += self._rebound()
-        candidates += self._snapshot_offers()
         self.policy_set = self.admission.admit(self.record, candidates, self.iteration + 1)  # line 22: Π
         self._stage_policy_set()  # before the evaluation: its worker processes load Π
         self.history.append(self._evaluate_gpi())
@@ -274,7 +251,6 @@ class OLSCallback(BaseCallback):
 
     def _start_iteration(self, weights: AgentWeights) -> None:
         self.weights = weights
-        self._snapshots = []
         self._iteration_start = self.model.num_timesteps
         self.model.start_iteration(weights, self.iteration, self.steps_per_iteration, support=self.schedule.ols.weights)
         if self.progress_bar:
@@ -298,26 +274,17 @@ class OLSCallback(BaseCallback):
         Each conditioned learner's latest network bound to every earlier weight of OLS's support (not its iteration's
         own), with the value of that member acting alone for its weight, on the episodes of :meth:`_estimate_values`.
         """
+        runner, seed = self.model, self._value_seed()
         offered = []
-        for name, learner in self.model.conditioned_learners.items():
+        for name, learner in runner.conditioned_learners.items():
             for w in (np.asarray(w, dtype=np.float64) for w in self.schedule.ols.weights):
-                if not same_weight(w, self.weights[name]):
-                    offered.append(self._offer(name, learner, w))
+                if same_weight(w, self.weights[name]):
+                    continue
+                alone = GPIPolicy()
+                alone.add(learner, w)
+                returns = runner.rollout(alone.joint_policy(w), self.values.episodes, seed)
+                offered.append(Candidate(learner, returns.mean_discounted_over(runner.groups[name]), name, w))
         return offered
-
-    def _snapshot_offers(self) -> list[Candidate]:
-        """The iteration's copies of the conditioned networks (``snapshots``), bound to their learners' weights."""
-        return [self._offer(name, network, self.weights[name]) for name, network in self._snapshots]
-
-    def _offer(self, name: str, network: SFDQN | nn.Module, weights: np.ndarray) -> Candidate:
-        """
-        Learner ``name``'s network (``network``, or a copy of it) bound to ``weights``, with the value of that member
-        acting alone for them on the episodes of :meth:`_estimate_values`.
-        """
-        alone = GPIPolicy()
-        alone.add(network, weights)
-        returns = self.model.rollout(alone.joint_policy(weights), self.values.episodes, self._value_seed())
-        return Candidate(network, returns.mean_discounted_over(self.model.groups[name]), name, weights)
 
     def _value_seed(self) -> int:
         """The seed of the iteration's value episodes: the same episodes for every policy valued in it."""

@@ -69,10 +69,6 @@ class MASFOLS:
     :param rebind_support: at the end of every iteration, each learner conditioned on the weights also offers Π its
         latest network bound to every earlier weight of OLS's support (what it learned for that weight since its
         member joined); validation admits each only where GPI does no worse, and pruning retires what it supersedes
-    :param snapshots: each learner conditioned on the weights is also copied this many times in every iteration, at
-        even intervals of its steps, and each copy is offered to Π for the iteration's weights beside the network of
-        the iteration's end: validation admits those with which GPI does no worse (a network's greedy policy changes
-        from one update to the next; this lets validation choose among them). 0: none
     :param test_weights: the weights GPI is evaluated at after every iteration: an array ``(n, d)``, a number ``n`` of
         Dirichlet(1) weights drawn with seed 0, or None (12 such weights; fixed weights: those)
     :param eval_episodes: episodes per test weight
@@ -98,7 +94,7 @@ class MASFOLS:
     :param verbose: 1 prints a line per iteration, and the policies validation leaves out or retires
     :raises ValueError: learner options the learners refuse (a learner is built and dropped to check them);
         ``pool_replay`` with several agents or other learners than tables; ``episode_weights="support"`` or
-        ``rebind_support`` or ``snapshots`` with learners not conditioned on the weights or without validation weights;
+        ``rebind_support`` with learners not conditioned on the weights; ``rebind_support`` without validation weights;
         with a ``run_dir``, learner arguments a run file does not take
     """
 
@@ -124,19 +120,17 @@ class MASFOLS:
         pool_replay: bool = RunSettings.pool_replay,
         episode_weights: str = RunSettings.episode_weights,
         rebind_support: bool = RunSettings.rebind_support,
-        snapshots: int = RunSettings.snapshots,
         env_fn: Callable[[], ParallelEnv | gym.Env] | None = None,
         run_dir: str | Path | None = None,
         eval_workers: int = 0,
         verbose: int = 0,
     ):
         learner_kwargs = dict(learner_kwargs or {})
-        offers = [name for name, given in (("rebind_support", rebind_support), ("snapshots", snapshots)) if given]
-        if offers and not (_conditioned(policy) and validation_weights):
+        if rebind_support and not (_conditioned(policy) and validation_weights):
             raise ValueError(
-                f"{' and '.join(offers)} offer Π more networks of a conditioned learner, for validation to admit: "
-                "it needs policy='ConditionedMlpPolicy' and validation_weights > 0, "
-                f"got {policy!r} and {validation_weights}"
+                "rebind_support offers Π a conditioned learner's latest network at earlier weights, for validation to "
+                f"admit: it needs policy='ConditionedMlpPolicy' and validation_weights > 0, got {policy!r} and "
+                f"{validation_weights}"
             )
         if run_dir is not None:  # its run.json must describe the run to a resume, which takes nothing else
             check_learner_kwargs(learner_kwargs, "MASFOLS with a run_dir")
@@ -176,14 +170,13 @@ class MASFOLS:
             pool_replay=pool_replay,
             episode_weights=episode_weights,
             rebind_support=rebind_support,
-            snapshots=snapshots,
         )
         self.callback = OLSCallback(
             make_schedule(weights, ols_batch), steps_per_iteration, evaluation,
             ValueEstimation(value_mode, value_episodes),
             Admission(validation_weights, prune=prune, together=admit_together, verbose=verbose), self.run_dir,
             verbose=verbose, pooled=PooledReplay(self.runner.gamma) if pool_replay else None,
-            rebind_support=rebind_support, snapshots=snapshots,
+            rebind_support=rebind_support,
         )  # fmt: skip
         #: What :meth:`learn` writes to ``run.json``: the settings and plain data added here (the CLI: domain, env)
         self.run_info: dict[str, Any] = self.settings.to_json()

@@ -124,7 +124,7 @@ _SETTING_KINDS: dict[str, Callable[[Any], bool]] = {
     **dict.fromkeys(("domain", "algorithm", "policy", "gpi_set", "value_mode", "sharing", "episode_weights"), _string),
     **dict.fromkeys(("env_kwargs", "learner_kwargs"), lambda v: isinstance(v, dict)),
     **dict.fromkeys(("seed", "iterations", "steps_per_iteration", "n_test_weights", "validation_weights"), _integer),
-    **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers", "n_envs", "snapshots"), _integer),
+    **dict.fromkeys(("value_episodes", "eval_episodes", "eval_workers", "n_envs"), _integer),
     **dict.fromkeys(("prune", "admit_together", "pool_replay", "rebind_support"), lambda v: isinstance(v, bool)),
     "test_weights": lambda v: _weights(v, 2),
     "weights": lambda v: isinstance(v, str) or _weights(v, 1),

@@ -25,7 +25,10 @@ VALUE_MODES = ("joint", "shared")
 #: What conditioned learners act and train for in each episode (see :mod:`~sb3_sfgpi.episode_weights`).
 EPISODE_WEIGHTS = ("own", "support")
 #: Settings added after runs were first written: a ``run.json`` without one is of a run that had its default.
-ADDED_LATER = ("episode_weights", "rebind_support", "snapshots")
+ADDED_LATER = ("episode_weights", "rebind_support")
+#: Settings that runs were written with and this version no longer has, each with the value it behaves as: a run
+#: stored with another value cannot be continued (``snapshots``: removed on 2026-12-02, the levers page says why).
+REMOVED = {"snapshots": 0}
 
 
 @dataclass(frozen=True)
@@ -58,7 +61,6 @@ class RunSettings:
     pool_replay: bool = False
     episode_weights: str = EPISODE_WEIGHTS[0]
     rebind_support: bool = False
-    snapshots: int = 0
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
@@ -71,8 +73,11 @@ class RunSettings:
         The settings of a ``run.json`` (its other keys ignored).
 
         :param where: the file, for the error
-        :raises ValueError: a setting is missing
+        :raises ValueError: a setting is missing, or a removed one is not at the value this version behaves as
         """
+        removed = {name: config[name] for name, kept in REMOVED.items() if config.get(name, kept) != kept}
+        if removed:
+            raise ValueError(f"{where} is of a run with {removed}, which this version no longer has: it cannot go on")
         missing = [name for name in cls.names() if name not in config and name not in ADDED_LATER]
         if missing:
             raise ValueError(f"{where} lacks the settings {missing}: not a run of MASFOLS")

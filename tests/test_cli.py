@@ -167,11 +167,6 @@ def test_evaluate_members_runs_each_policy_of_the_gpi_set_alone(run_dir, capsys)
             ["train", "four-room", "--set", "rebind_support=true", "--out", "NOT_A_RUN"],
             "it needs policy='ConditionedMlpPolicy' and validation_weights > 0, got 'TabularPolicy'",
         ),
-        (["train", "four-room", "--set", "snapshots=-1", "--out", "NOT_A_RUN"], "--set snapshots must be an integer"),
-        (
-            ["train", "four-room", "--set", "snapshots=2", "--out", "NOT_A_RUN"],
-            "snapshots offer Π more networks of a conditioned learner",
-        ),
         (
             ["train", "four-room", "--set", "validation_weights=0", "--set", "prune=true", "--out", "NOT_A_RUN"],
             "--set prune=true needs validation weights",

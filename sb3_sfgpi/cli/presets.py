@@ -51,7 +51,6 @@ SETTABLE: dict[str, tuple[Callable[[Any], bool], str]] = {
     "admit_together": (lambda value: isinstance(value, bool), "true or false"),
     "pool_replay": (lambda value: isinstance(value, bool), "true or false"),
     "rebind_support": (lambda value: isinstance(value, bool), "true or false"),
-    "snapshots": (_count(0), f"an integer in [0, {MAX_COUNT}]"),
     "episode_weights": (_one_of(EPISODE_WEIGHTS), f"one of {', '.join(EPISODE_WEIGHTS)}"),
     "n_test_weights": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
     "value_episodes": (_count(1), f"an integer in [1, {MAX_COUNT}]"),
