@@ -27,7 +27,6 @@ LEARNER_ARGUMENTS = frozenset(
         "train_freq",
         "gradient_steps",
         "optimize_memory_usage",
-        "n_steps",
         "target_update_interval",
         "exploration_fraction",
         "exploration_initial_eps",

@@ -5,15 +5,11 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium import spaces
-from hypothesis import given, settings
-from hypothesis import strategies as st
 from momdp import N_STATES, Fig1MOMDP
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_sfgpi.common.buffers import MOReplayBuffer
-from sb3_sfgpi.common.prioritized_buffer import PrioritizedMOReplayBuffer
 from sb3_sfgpi.common.vec_env import MODummyVecEnv
 
 
@@ -104,97 +100,3 @@ def test_integer_observations_are_stored_in_the_smallest_dtype_and_read_back_unc
     assert obs.dtype == next_obs.dtype == space.dtype  # read back as the space's
     np.testing.assert_array_equal(obs.reshape(20, -1), np.reshape(observations[:-1], (20, -1)))
     np.testing.assert_array_equal(next_obs.reshape(20, -1), np.reshape(observations[1:], (20, -1)))
-
-
-# --------------------------------------------------------------------------------------------------------------
-# n-step returns
-# --------------------------------------------------------------------------------------------------------------
-
-
-def _expected_n_step(
-    history: list[tuple], t: int, n_steps: int, gamma: float
-) -> tuple[np.ndarray, float, float, float]:
-    """
-    One env's transition ``t`` of its ``history`` ((obs, reward, done, timeout, next obs) in order): the return of up
-    to ``n_steps`` transitions, stopping after one that ends its episode or at the last stored, the observation after
-    them, their last one's termination, and ``γ^m``.
-    """
-    total, m = np.zeros(2), 0
-    while True:
-        _, reward, done, timeout, next_obs = history[t + m]
-        total += gamma**m * reward
-        m += 1
-        if done or m == n_steps or t + m == len(history):
-            return total, next_obs, float(done and not timeout), gamma**m
-
-
-@settings(max_examples=60, deadline=None)
-@given(
-    n_envs=st.integers(1, 3),
-    n_steps=st.integers(1, 4),
-    size=st.integers(2, 6),
-    ends=st.lists(st.sampled_from(["", "done", "truncated"]), min_size=1, max_size=40),
-    gamma=st.sampled_from([1.0, 0.9, 0.5]),
-)
-def test_n_step_samples_are_the_discounted_returns_of_each_episode_up_to_n_transitions(
-    n_envs, n_steps, size, ends, gamma
-):
-    buffer = PrioritizedMOReplayBuffer(
-        size * n_envs, spaces.Box(-1.0, 1e6, (1,)), spaces.Discrete(2), device="cpu", n_envs=n_envs, reward_dim=2,
-        n_steps=n_steps, gamma=gamma,
-    )  # fmt: skip
-    histories: list[list[tuple]] = [[] for _ in range(n_envs)]
-    stored = {}  # flat row -> (env, index in its history)
-    for step, end in enumerate(ends):
-        envs = np.arange(n_envs)
-        obs, next_obs = (step * n_envs + envs).astype(np.float32), (1000 + step * n_envs + envs).astype(np.float32)
-        rewards = np.stack([step + envs, np.full(n_envs, (-1.0) ** step)], axis=1).astype(np.float32)
-        dones = (envs == step % n_envs) & (end != "")  # one env a step may end its episode
-        infos = [{"TimeLimit.truncated": bool(d and end == "truncated")} for d in dones]
-        for env in envs:
-            truncated = infos[env]["TimeLimit.truncated"]
-            histories[env].append((obs[env], rewards[env], dones[env], truncated, next_obs[env]))
-            stored[buffer._next_rows(n_envs)[env]] = (env, len(histories[env]) - 1)
-        buffer.add(obs[:, None], next_obs[:, None], envs % 2, rewards, dones, infos)
-    rows = buffer.stored_rows()
-    samples = buffer.samples_at(rows)
-    for i, row in enumerate(rows):
-        env, t = stored[row]
-        total, next_obs, done, discount = _expected_n_step(histories[env], t, n_steps, gamma)
-        assert samples.observations[i, 0] == histories[env][t][0]
-        np.testing.assert_allclose(samples.rewards[i].numpy(), total, rtol=1e-6)
-        assert samples.next_observations[i, 0] == next_obs and samples.dones[i, 0] == done
-        if n_steps == 1:
-            assert samples.discounts is None  # one-step samples: the learner's γ
-        else:
-            assert samples.discounts[i, 0] == pytest.approx(discount)
-
-
-def test_a_uniform_buffer_samples_n_step_returns_too():
-    buffer = MOReplayBuffer(50, spaces.Box(-1.0, 100.0, (1,)), spaces.Discrete(2), device="cpu", reward_dim=2,
-                            n_steps=3, gamma=0.5)  # fmt: skip
-    for t in range(6):  # one episode of 4 transitions, then one of 2 still going
-        reward = np.array([[t, 1.0]], dtype=np.float32)
-        buffer.add(np.array([[t]]), np.array([[t + 1]]), np.array([0]), reward, np.array([t == 3]), [{}])
-    samples = buffer.sample(200)
-    by_start = {int(o): (r.tolist(), int(n), float(d), float(g)) for o, r, n, d, g in zip(
-        samples.observations[:, 0], samples.rewards, samples.next_observations[:, 0], samples.dones[:, 0],
-        samples.discounts[:, 0], strict=True)}  # fmt: skip
-    assert by_start[0] == ([0 + 0.5 * 1 + 0.25 * 2, 1.75], 3, 0.0, 0.125)
-    assert by_start[2] == ([2 + 0.5 * 3, 1.5], 4, 1.0, 0.25)  # the episode ends after 2 transitions: no bootstrap
-    assert by_start[4] == ([4 + 0.5 * 5, 1.5], 6, 0.0, 0.25)  # nothing stored after step 5 yet
-    assert by_start[5] == ([5, 1.0], 6, 0.0, 0.5)
-
-
-def test_n_step_buffers_refuse_what_they_cannot_sample_right():
-    space, actions = spaces.Box(-1.0, 1.0, (1,)), spaces.Discrete(2)
-    with pytest.raises(ValueError, match="n_steps must be a positive integer, got 0"):
-        MOReplayBuffer(10, space, actions, device="cpu", reward_dim=2, n_steps=0)
-    with pytest.raises(ValueError, match="optimize_memory_usage"):
-        MOReplayBuffer(10, space, actions, device="cpu", reward_dim=2, n_steps=2, optimize_memory_usage=True)
-    buffer = MOReplayBuffer(10, space, actions, device="cpu", n_envs=2, reward_dim=2, n_steps=2)
-    with pytest.raises(ValueError, match="a transition of every env at every step, got 1 rows of 2"):
-        buffer.add_rows(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros(1), np.zeros((1, 2)), np.zeros(1), np.zeros(1))
-    buffer.add_rows(np.zeros((2, 1)), np.zeros((2, 1)), np.zeros(2), np.zeros((2, 2)), np.zeros(2), np.zeros(2))
-    with pytest.raises(ValueError, match="sample_arrays gives one-step transitions"):
-        buffer.sample_arrays(4)

@@ -139,19 +139,3 @@ def test_the_command_line_refuses_ids_it_cannot_train(tmp_path, cli_exit, domain
     code, stderr = cli_exit(["train", domain, "--out", str(tmp_path / "x")])
     assert code == 2 and message in stderr and len(stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x").exists()
-
-
-def test_a_deep_run_learns_from_n_step_returns_where_the_command_line_asks(tmp_path, capsys):
-    """``--learner n_steps=3``: the runner's learner (fed a step at a time) samples 3-step returns, and resumes."""
-    out = tmp_path / "minecart"
-    short = ["--steps-per-iteration", "150", "--set", "n_test_weights=1", "--set", "value_episodes=1"]
-    short += ["--set", "validation_weights=2", "--env", "max_episode_steps=100", "--no-progress", "--out", str(out)]
-    assert main(["train", "minecart-v0", "--iterations", "1", "--learner", "n_steps=3", *short]) == 0
-    assert json.loads((out / "run.json").read_text())["learner_kwargs"]["n_steps"] == 3
-    assert main(["train", "minecart-v0", "--iterations", "2", "--learner", "n_steps=3", *short, "--resume"]) == 0
-    assert len(json.loads((out / "evaluation.json").read_text())) == 2
-    capsys.readouterr()
-    bad = ["train", "minecart-v0", "--learner", "n_steps=0", "--no-progress", "--out", str(tmp_path / "bad")]
-    assert main(bad) == 2
-    error = capsys.readouterr().err
-    assert "n_steps must be a positive integer, got 0" in error and len(error.strip().splitlines()) == 1

@@ -3,8 +3,7 @@
 SB3's :class:`~stable_baselines3.common.buffers.ReplayBuffer` stores one float per transition and, handed
 vector rewards, either fails or (when sampling) flattens them silently into shape ``(batch * d, 1)``.
 :class:`MOReplayBuffer` stores rewards of shape ``(buffer_size, n_envs, reward_dim)`` and samples
-``(batch, reward_dim)``; with ``n_steps > 1`` each sample sums the discounted rewards of the next ``n_steps``
-transitions of its episode (n-step returns, as SB3's ``NStepReplayBuffer`` for scalar rewards).
+``(batch, reward_dim)``.
 """
 
 from __future__ import annotations
@@ -55,9 +54,6 @@ class MOReplayBufferSamples(NamedTuple):
     rewards: th.Tensor
     next_action_masks: th.Tensor | None = None
     rows: np.ndarray | None = None
-    #: the discount of each row's bootstrap, ``γ^m`` for a return of ``m`` transitions, shape ``(batch, 1)``; None:
-    #: one transition each (``γ``)
-    discounts: th.Tensor | None = None
 
 
 class MOReplayBuffer(ReplayBuffer):
@@ -76,12 +72,6 @@ class MOReplayBuffer(ReplayBuffer):
     (:func:`compact_dtype`: a byte for the Four-Room's cells and flags, instead of SB3's ``int64``); they are read
     back as the same values in the space's dtype.
 
-    With ``n_steps > 1`` a sampled transition ``(s_t, a_t)`` comes with the return of the next ``m ≤ n_steps``
-    transitions of the same env, ``Σ_{k<m} γ^k r_{t+k}``, the observation after them and their last transition's
-    termination, and ``discounts = γ^m``: ``m`` is less where the episode ends (terminated or truncated) or the buffer
-    holds no later step yet. Each step must store a transition for every env (:meth:`add`, or :meth:`add_rows` of
-    whole steps), so that the same env's next transition is ``n_envs`` rows on.
-
     :param buffer_size: Max number of transitions in the buffer
     :param observation_space: Observation space
     :param action_space: Action space
@@ -91,8 +81,6 @@ class MOReplayBuffer(ReplayBuffer):
     :param handle_timeout_termination: Bootstrap on time-limit truncation (forced off with
         ``optimize_memory_usage``)
     :param reward_dim: Number of objectives ``d``
-    :param n_steps: Transitions per sampled return (1: one-step samples)
-    :param gamma: The discount of the n-step returns (unused with ``n_steps=1``)
     """
 
     def __init__(
@@ -105,15 +93,9 @@ class MOReplayBuffer(ReplayBuffer):
         optimize_memory_usage: bool = False,
         handle_timeout_termination: bool = True,
         reward_dim: int = 1,
-        n_steps: int = 1,
-        gamma: float = 0.99,
     ):
         if reward_dim < 1:
             raise ValueError(f"reward_dim must be at least 1, got {reward_dim}")
-        if isinstance(n_steps, bool) or not isinstance(n_steps, int) or n_steps < 1:
-            raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
-        if n_steps > 1 and optimize_memory_usage:
-            raise ValueError("n-step returns (n_steps > 1) need a buffer without optimize_memory_usage")
         super().__init__(
             buffer_size,
             observation_space,
@@ -124,7 +106,6 @@ class MOReplayBuffer(ReplayBuffer):
             handle_timeout_termination=handle_timeout_termination and not optimize_memory_usage,
         )
         self.reward_dim = reward_dim
-        self.n_steps, self.gamma = n_steps, float(gamma)
         self.rewards = np.zeros((self.buffer_size, self.n_envs, reward_dim), dtype=np.float32)
         compact = compact_dtype(observation_space)
         if compact is not None:  # the same values in fewer bytes; np.zeros, not zeros_like: no page is touched yet
@@ -197,17 +178,12 @@ class MOReplayBuffer(ReplayBuffer):
         :param dones: whether each transition ended its episode, shape ``(k,)``
         :param timeouts: whether that end was a time-limit truncation, shape ``(k,)``
         :param next_masks: the next observations' action masks, shape ``(k, n_actions)``, or None (every action)
-        :raises ValueError: with ``optimize_memory_usage`` (its next observation is the same env's next row),
-            rewards of the wrong shape, or fewer rows than a whole step with ``n_steps > 1``
+        :raises ValueError: with ``optimize_memory_usage`` (its next observation is the same env's next row), or
+            rewards of the wrong shape
         """
         if self.optimize_memory_usage:
             raise ValueError("add_rows needs a buffer without optimize_memory_usage")
         k = len(rewards)
-        if self.n_steps > 1 and (k != self.n_envs or self._rows_at_pos):
-            raise ValueError(
-                f"n-step returns (n_steps={self.n_steps}) need a transition of every env at every step, got {k} rows "
-                f"of {self.n_envs} (agents that leave their episode early): use n_steps=1"
-            )
         if np.shape(rewards) != (k, self.reward_dim):
             raise ValueError(f"add_rows expects rewards of shape (k, {self.reward_dim}), got {np.shape(rewards)}")
         capacity = self.buffer_size * self.n_envs
@@ -247,10 +223,7 @@ class MOReplayBuffer(ReplayBuffer):
 
         :param batch_size: Number of transitions
         :return: see :data:`Arrays`
-        :raises ValueError: a buffer of n-step returns (their discounts are :meth:`sample`'s only)
         """
-        if self.n_steps > 1:
-            raise ValueError("sample_arrays gives one-step transitions: sample n-step returns with sample()")
         obs, actions, next_obs, dones, rewards, next_masks = self._arrays(self._sample_indices(batch_size))
         return obs, actions.reshape(-1), next_obs, dones, rewards, next_masks
 
@@ -337,37 +310,11 @@ class MOReplayBuffer(ReplayBuffer):
             raise ValueError(
                 "Reward normalisation (VecNormalize(norm_reward=True)) is not supported for vector rewards"
             )
-        flat = self._flat_rows(batch_inds)
-        obs, actions, next_obs, dones, rewards, next_masks = self._gather(flat)
-        discounts = None
-        if self.n_steps > 1:
-            last, rewards, discounts = self._n_step_returns(flat)
-            _, _, next_obs, dones, _, next_masks = self._gather(last)
+        obs, actions, next_obs, dones, rewards, next_masks = self._arrays(batch_inds)
         data = (self._normalize_obs(obs, env), actions, self._normalize_obs(next_obs, env), dones[:, None], rewards)
         return MOReplayBufferSamples(
-            *map(self.to_torch, data),
-            next_action_masks=None if next_masks is None else self.to_torch(next_masks),
-            discounts=None if discounts is None else self.to_torch(discounts[:, None]),
+            *map(self.to_torch, data), next_action_masks=None if next_masks is None else self.to_torch(next_masks)
         )
-
-    def _n_step_returns(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """
-        The n-step returns from the flat rows ``flat``: each row's last transition (a flat row), the discounted
-        sum of the rewards up to it, shape ``(batch, d)`` in float32, and ``γ^m`` for its ``m`` transitions.
-        """
-        n_rows = self.buffer_size * self.n_envs
-        ended, rewards = self.dones.reshape(n_rows), self.rewards.reshape(n_rows, self.reward_dim)
-        newest = (self.pos - 1) % self.buffer_size  # the latest step stored: nothing after it is this episode's
-        last, total = flat.copy(), rewards[flat].astype(np.float64)
-        steps = np.ones(len(flat), dtype=np.int64)
-        going = ended[flat] == 0
-        for k in range(1, self.n_steps):
-            going &= last // self.n_envs != newest
-            last = np.where(going, (last + self.n_envs) % n_rows, last)
-            total += np.where(going[:, None], self.gamma**k * rewards[last], 0.0)
-            steps += going
-            going &= ended[last] == 0
-        return last, total.astype(np.float32), (self.gamma**steps).astype(np.float32)
 
 
 #: The dtypes :func:`compact_dtype` chooses from, smallest first.

@@ -262,8 +262,7 @@ class ConditionedPolicy(SFDQNPolicy):
             next_actions = greedy_actions(self.sf_net(next_observations, weights), weights, masks)
             target_heads = self.sf_net_target.heads(next_observations, weights)[:, rows, next_actions]
             next_psi = target_heads[weighted_sum(target_heads, weights).argmin(dim=0), rows]
-            discounts = gamma if batch.discounts is None else repeated(batch.discounts)  # γ^m of an m-step return
-            target_psi = repeated(batch.rewards) + (1 - repeated(batch.dones)) * discounts * next_psi
+            target_psi = repeated(batch.rewards) + (1 - repeated(batch.dones)) * gamma * next_psi
         current_heads = self.sf_net.heads(observations, weights)[:, rows, repeated(batch.actions).long().flatten()]
         return current_heads, target_psi
 

@@ -70,7 +70,6 @@ def check_options(
     batch_size: int,
     n_steps: int,
     replay_buffer_class: type[ReplayBuffer] | None,
-    policy_class: type,
 ) -> None:
     """Refuse out-of-range learning options and SB3 options SFDQN does not support."""
     rate_ok = isinstance(learning_rate, numbers.Real) and math.isfinite(learning_rate) and learning_rate >= 0
@@ -80,10 +79,8 @@ def check_options(
         raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
     if isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
-    if isinstance(n_steps, bool) or not isinstance(n_steps, numbers.Integral) or n_steps < 1:
-        raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
-    if n_steps > 1 and issubclass(policy_class, TabularPolicy):
-        raise ValueError(f"n-step returns (n_steps={n_steps}) are for network policies, not TabularPolicy")
+    if n_steps != 1:
+        raise ValueError(f"SFDQN supports only 1-step returns (n_steps=1), got n_steps={n_steps}")
     if replay_buffer_class is not None and not issubclass(replay_buffer_class, MOReplayBuffer):
         raise ValueError(
             f"replay_buffer_class must be a subclass of MOReplayBuffer (vector rewards), got {replay_buffer_class}"
@@ -163,7 +160,7 @@ def check_arguments(arguments: Mapping[str, Any], policy_class: type) -> None:
     :param policy_class: the policy class they are for
     """
     a = arguments
-    check_options(a["learning_rate"], a["gamma"], a["batch_size"], a["n_steps"], a["replay_buffer_class"], policy_class)
+    check_options(a["learning_rate"], a["gamma"], a["batch_size"], a["n_steps"], a["replay_buffer_class"])
     check_planning_options(a["planning_sweeps"], a["planning_interval"], a["optimistic_init"], policy_class)
     exploration = (a["exploration_fraction"], a["exploration_initial_eps"], a["exploration_final_eps"])
     check_schedule_options(

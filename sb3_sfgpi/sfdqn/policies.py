@@ -195,8 +195,7 @@ class SFDQNPolicy(BasePolicy):
         vec_normalize_env: VecNormalize | None = None,
     ) -> float:
         """
-        One gradient step on a sampled batch, towards ``r + γ (1 − terminated) ψ_target(s', a*)`` (an n-step
-        buffer's return of ``m`` transitions and ``γ^m`` instead of ``r`` and ``γ``) with
+        One gradient step on a sampled batch, towards ``r + γ (1 − terminated) ψ_target(s', a*)`` with
         ``a* = argmax_a w · ψ(s', a)`` over the actions ``s'`` has (its action mask, where the env gives one; online
         network picks, target network evaluates), Huber loss averaged over batch and objectives, gradient norm
         clipped.
@@ -224,8 +223,7 @@ class SFDQNPolicy(BasePolicy):
             next_online = self.sf_net(batch.next_observations)
             next_actions = greedy_actions(next_online, self.weights, batch.next_action_masks)
             next_psi = next_online if self.sf_net_target is self.sf_net else self.sf_net_target(batch.next_observations)
-            discounts = gamma if batch.discounts is None else batch.discounts  # γ^m of an m-step return
-            target_psi = batch.rewards + (1 - batch.dones) * discounts * next_psi[rows, next_actions]
+            target_psi = batch.rewards + (1 - batch.dones) * gamma * next_psi[rows, next_actions]
         return self.sf_net(batch.observations)[rows, batch.actions.long().flatten()], target_psi
 
     def weighted_errors(self, current_psi: th.Tensor, target_psi: th.Tensor) -> th.Tensor:

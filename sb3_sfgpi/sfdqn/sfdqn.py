@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -65,10 +64,7 @@ class SFDQN(MOOffPolicyAlgorithm):
     :param replay_buffer_kwargs: Keyword arguments to pass to the replay buffer on creation (the prioritised
         buffer's ``alpha`` and ``min_priority``)
     :param optimize_memory_usage: Enable a memory efficient variant of the replay buffer
-    :param n_steps: Transitions per TD target (network policies): each sampled transition's target sums the
-        discounted vector rewards of the next ``n_steps`` transitions of its episode and bootstraps ``γ^n_steps
-        ψ_target`` after them (fewer where the episode ends), as SB3's DQN: the replayed actions are those of the
-        behaviour, without off-policy correction (:class:`~sb3_sfgpi.common.buffers.MOReplayBuffer`)
+    :param n_steps: Must be 1 (n-step returns are not implemented for vector rewards)
     :param target_update_interval: Update the target network every ``target_update_interval`` env steps
     :param exploration_fraction: Fraction of training over which the exploration rate is reduced
     :param exploration_initial_eps: Initial value of random action probability
@@ -156,7 +152,6 @@ class SFDQN(MOOffPolicyAlgorithm):
             verbose=verbose, device=device, seed=seed, sde_support=False, supported_action_spaces=(spaces.Discrete,),
             support_multi_env=True,
         )  # fmt: skip
-        self.n_steps = n_steps  # SB3 set up no buffer of its own for it: ours takes it (_setup_model)
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
         self.exploration_fraction = exploration_fraction
@@ -180,12 +175,9 @@ class SFDQN(MOOffPolicyAlgorithm):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        n_step = {"n_steps": self.n_steps, "gamma": self.gamma} if self.n_steps > 1 else {}
-        self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "reward_dim": self.reward_dim, **n_step}
+        self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "reward_dim": self.reward_dim}
         self.policy_kwargs = {**self.policy_kwargs, "reward_dim": self.reward_dim}
-        with warnings.catch_warnings():  # SB3's: n_steps ignored with a buffer class given (ours takes it, above)
-            warnings.filterwarnings("ignore", message="`n_steps=.*` is ignored because a custom")
-            super()._setup_model()
+        super()._setup_model()
         prioritised = isinstance(self.replay_buffer, PrioritizedMOReplayBuffer)
         if prioritised and isinstance(self.policy, TabularPolicy):
             raise ValueError("prioritised replay is for network policies: a table learns every sampled row exactly")
