@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -204,11 +205,19 @@ def _four_room(out: Path) -> list[str]:
     return ["train", "four-room", "--out", str(out), "--no-progress", *budget]
 
 
+@pytest.fixture
+def live_ctrl_c() -> Iterator[None]:
+    """Ctrl-C delivered as in a terminal, also where pytest runs as a background job of a script (SIGINT ignored)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize(
     ("signal_number", "reason"), [(signal.SIGTERM, "(interrupted by SIGTERM)"), (signal.SIGINT, "(interrupted)")]
 )
 def test_an_interrupt_lost_in_a_finalizer_stops_training_at_the_next_step(
-    tmp_path, monkeypatch, capfd, signal_number, reason
+    tmp_path, monkeypatch, capfd, live_ctrl_c, signal_number, reason
 ):
     learn = MASFOLS.learn
     at = _SignalInAFinalizerAt(250, signal_number)
