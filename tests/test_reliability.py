@@ -11,8 +11,10 @@ import sys
 import time
 import warnings
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -205,12 +207,21 @@ def _four_room(out: Path) -> list[str]:
     return ["train", "four-room", "--out", str(out), "--no-progress", *budget]
 
 
+@contextmanager
+def _sigint_handled_by(handler: Any) -> Iterator[None]:
+    """SIGINT's handler set to ``handler`` in the block, the previous one back after it."""
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 @pytest.fixture
 def live_ctrl_c() -> Iterator[None]:
     """Ctrl-C delivered as in a terminal, also where pytest runs as a background job of a script (SIGINT ignored)."""
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    yield
-    signal.signal(signal.SIGINT, previous)
+    with _sigint_handled_by(signal.default_int_handler):
+        yield
 
 
 @pytest.mark.parametrize(
@@ -244,14 +255,11 @@ def test_an_error_an_interrupt_turned_into_is_reported_as_the_interrupt(tmp_path
 
 
 def test_a_sigint_that_a_background_job_ignores_stays_ignored_in_training():
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
+    with _sigint_handled_by(signal.SIG_IGN):
         with Interrupts().caught():
             assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
             assert signal.getsignal(signal.SIGTERM) not in (signal.SIG_DFL, signal.SIG_IGN)
         assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def test_sigkill_at_random_moments_then_resume_loses_and_repeats_nothing(tmp_path):
