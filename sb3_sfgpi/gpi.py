@@ -126,7 +126,7 @@ class GPIPolicy(BatchedGPI):
         :raises ValueError: a network of another architecture, spaces or reward dimension than the set's
         """
         if isinstance(model, SFDQN):
-            net, weights = model.policy.sf_net, model.weights if weights is None else weights
+            net, weights = model.policy.member_net, model.weights if weights is None else weights
         elif weights is None:
             raise ValueError("weights are required when adding a bare SF network")
         else:

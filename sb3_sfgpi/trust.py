@@ -48,8 +48,9 @@ LEARNER_ARGUMENTS = frozenset(
 REPLAY_BUFFER_NAMES = ("MOReplayBuffer", "PrioritizedMOReplayBuffer")
 #: Replay buffer arguments a run file may set (the prioritised buffer's, numbers).
 REPLAY_BUFFER_ARGUMENTS = frozenset({"alpha", "min_priority"})
-#: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads``: a conditioned network's).
-POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads"})
+#: Policy arguments a run file may set (``net_arch``: a list of layer widths; ``n_heads`` and ``member_average``: a
+#: conditioned network's).
+POLICY_ARGUMENTS = frozenset({"net_arch", "n_heads", "member_average"})
 _MAX_WIDTH = 1 << 16
 #: A conditioned network's counts a run file may set, each with its least (also its default) and largest value.
 _POLICY_COUNTS = {"n_heads": (1, 16)}
@@ -83,6 +84,9 @@ def check_learner_kwargs(kwargs: Mapping[str, Any], source: str) -> None:
         count = policy_kwargs.get(name, low)
         if isinstance(count, bool) or not isinstance(count, int) or not low <= count <= high:
             raise ValueError(f"{source}: {name!r} must be an integer in [{low}, {high}], got {count!r}")
+    average = policy_kwargs.get("member_average", 0.0)
+    if isinstance(average, bool) or not isinstance(average, (int, float)) or not 0.0 <= average < 1.0:
+        raise ValueError(f"{source}: 'member_average' must be a number in [0, 1), got {average!r}")
 
 
 def _check_replay_buffer(kwargs: Mapping[str, Any], source: str) -> None:

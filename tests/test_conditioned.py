@@ -295,3 +295,34 @@ def test_rebinding_needs_conditioned_learners_and_validation_weights():
         _masfols(rebind_support=True)
     with pytest.raises(ValueError, match="rebind_support"):
         MASFOLS(Fig1MOMDP(one_hot=True), policy="TabularPolicy", validation_weights=4, rebind_support=True)
+
+
+def test_members_copy_the_running_average_of_the_network_where_one_is_kept(tmp_path):
+    def model(average: float) -> SFDQN:
+        return SFDQN(
+            "ConditionedMlpPolicy", Fig1MOMDP(one_hot=True), weights=SUPPORT[0], batch_size=8, learning_starts=0,
+            learning_rate=1e-2, policy_kwargs=dict(net_arch=[16], member_average=average), seed=0,
+        )  # fmt: skip
+
+    plain, averaged = model(0.0), model(0.25)
+    assert plain.policy.sf_net_average is None and plain.policy.member_net is plain.policy.sf_net
+    policy = averaged.policy
+    averaged.learn(10)
+    before = [p.clone() for p in policy.sf_net_average.parameters()]
+    np.random.seed(1)
+    policy.td_update(averaged.replay_buffer, 8, GAMMA, 10.0)
+    for old, new, online in zip(before, policy.sf_net_average.parameters(), policy.sf_net.parameters(), strict=True):
+        th.testing.assert_close(new, old + 0.25 * (online - old))  # a quarter of the way to the network stepped
+        assert not th.equal(new, online)
+    policy_set = GPIPolicy()
+    policy_set.add(averaged, weights=SUPPORT[1])
+    obs = th.as_tensor(np.eye(5, dtype=np.float32)[:4], device=policy.device)
+    w = th.as_tensor(SUPPORT[1], dtype=th.float32, device=policy.device)
+    with th.no_grad():
+        th.testing.assert_close(policy_set.networks[0](obs), policy.sf_net_average(obs, w))
+    averaged.save(tmp_path / "model.zip")
+    loaded = SFDQN.load(tmp_path / "model.zip")
+    for mine, theirs in zip(loaded.policy.sf_net_average.parameters(), policy.sf_net_average.parameters(), strict=True):
+        th.testing.assert_close(mine, theirs.cpu())
+    with pytest.raises(ValueError, match="member_average"):
+        model(1.0)

@@ -98,6 +98,8 @@ def test_an_option_given_again_on_the_command_line_vouches_for_the_run_file(four
         ({"policy_kwargs": [1]}, "'policy_kwargs' must be an object"),
         ({"policy_kwargs": {"n_heads": 0}}, "'n_heads' must be an integer in [1, 16], got 0"),
         ({"policy_kwargs": {"n_heads": True}}, "'n_heads' must be an integer in [1, 16], got True"),
+        ({"policy_kwargs": {"member_average": 1}}, "'member_average' must be a number in [0, 1), got 1"),
+        ({"policy_kwargs": {"member_average": "0.1"}}, "'member_average' must be a number in [0, 1), got '0.1'"),
     ],
 )
 def test_a_run_file_sets_only_allowed_learner_arguments(four_room_run, tmp_path, capsys, learner, message):
@@ -120,5 +122,5 @@ def test_train_refuses_up_front_a_learner_argument_its_resume_would_refuse(tmp_p
     assert not out.exists()
 
 
-def test_a_conditioned_networks_head_count_is_taken_from_a_run_file():
-    check_learner_kwargs({"policy_kwargs": {"net_arch": [8], "n_heads": 2}}, "run.json")  # resumable
+def test_a_conditioned_networks_head_count_and_member_average_are_taken_from_a_run_file():
+    check_learner_kwargs({"policy_kwargs": {"net_arch": [8], "n_heads": 2, "member_average": 1e-3}}, "run.json")

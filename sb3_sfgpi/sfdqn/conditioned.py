@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.type_aliases import PyTorchObs
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 from torch.nn import functional as F
@@ -156,6 +156,9 @@ class ConditionedPolicy(SFDQNPolicy):
     :param reward_dim: Number of objectives ``d``
     :param net_arch: Hidden layer sizes (default :data:`CONDITIONED_NET_ARCH`)
     :param n_heads: Number of heads of the network (:data:`CONDITIONED_HEADS` by default)
+    :param member_average: 0: a member of Π copies the network as it is; else it copies a running average of the
+        network, moved that fraction of the way to the network after every gradient step (an exponential moving
+        average over about ``1 / member_average`` steps: a member is not the network of one noisy step)
     :param optimizer_kwargs: Keyword arguments of the optimizer, excluding the learning rate (default: ``foreach``)
     :param kwargs: further :class:`~sb3_sfgpi.sfdqn.policies.SFDQNPolicy` arguments
     """
@@ -169,9 +172,13 @@ class ConditionedPolicy(SFDQNPolicy):
         *args: Any,
         net_arch: list[int] | None = None,
         n_heads: int = CONDITIONED_HEADS,
+        member_average: float = 0.0,
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
+        if not 0.0 <= member_average < 1.0:
+            raise ValueError(f"member_average must be a number in [0, 1), got {member_average!r}")
+        self.member_average = member_average
         # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them (unless
         # told otherwise, or to fuse them)
         optimizer_kwargs = dict(optimizer_kwargs or {})
@@ -186,6 +193,24 @@ class ConditionedPolicy(SFDQNPolicy):
     @property
     def sf_network_kwargs(self) -> dict[str, Any]:
         return {"n_heads": self.n_heads}
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        super()._build(lr_schedule)
+        self.sf_net_average = copy.deepcopy(self.sf_net).requires_grad_(False) if self.member_average else None
+
+    @property
+    def member_net(self) -> nn.Module:
+        """The network members of Π copy: the running average of the SF network, where there is one."""
+        return self.sf_net if self.sf_net_average is None else self.sf_net_average
+
+    def gradient_step(self, loss: th.Tensor, max_grad_norm: float) -> float:
+        """One optimizer step (:meth:`SFDQNPolicy.gradient_step`), then the running average moves toward the network."""
+        value = super().gradient_step(loss, max_grad_norm)
+        if self.sf_net_average is not None:
+            with th.no_grad():
+                averaged, online = list(self.sf_net_average.parameters()), list(self.sf_net.parameters())
+                th._foreach_lerp_(averaged, online, self.member_average)
+        return value
 
     def set_support(self, support: np.ndarray) -> None:
         """
@@ -267,4 +292,4 @@ class ConditionedPolicy(SFDQNPolicy):
         return current_heads, target_psi
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "n_heads": self.n_heads}
+        return {**super()._get_constructor_parameters(), "n_heads": self.n_heads, "member_average": self.member_average}

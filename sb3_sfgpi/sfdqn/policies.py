@@ -89,6 +89,11 @@ class SFDQNPolicy(BasePolicy):
             self.sf_net.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
         )
 
+    @property
+    def member_net(self) -> nn.Module:
+        """The network a policy of Π copies from this policy: its SF network."""
+        return self.sf_net
+
     def make_sf_net(self) -> SFNetwork:
         """A new SF network (:attr:`sf_network_class`) with its own features extractor."""
         features_extractor = self.make_features_extractor()
