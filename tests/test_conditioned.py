@@ -324,5 +324,6 @@ def test_members_copy_the_running_average_of_the_network_where_one_is_kept(tmp_p
     loaded = SFDQN.load(tmp_path / "model.zip")
     for mine, theirs in zip(loaded.policy.sf_net_average.parameters(), policy.sf_net_average.parameters(), strict=True):
         th.testing.assert_close(mine, theirs.cpu())
-    with pytest.raises(ValueError, match="member_average"):
-        model(1.0)
+    for refused in (1.0, -0.1, "0.1", True):
+        with pytest.raises(ValueError, match="member_average"):
+            model(refused)

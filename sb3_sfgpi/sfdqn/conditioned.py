@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import itertools
+import numbers
 from typing import Any
 
 import numpy as np
@@ -176,7 +177,11 @@ class ConditionedPolicy(SFDQNPolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
-        if not 0.0 <= member_average < 1.0:
+        if (
+            isinstance(member_average, bool)
+            or not isinstance(member_average, numbers.Real)
+            or not 0 <= member_average < 1
+        ):
             raise ValueError(f"member_average must be a number in [0, 1), got {member_average!r}")
         self.member_average = member_average
         # foreach: the optimizer updates all parameters with a few batched kernels instead of a loop over them (unless
